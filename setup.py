@@ -1,0 +1,35 @@
+"""ament_python package: `colcon build` installs the nodes to lib/stereo_depth for `ros2 run`."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "stereo_depth"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="stereo_depth maintainers",
+    maintainer_email="maintainers@stereo-depth.invalid",
+    description="Depth from a calibrated stereo camera, live on ROS 2 topics and offline on rosbag2 files",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "stereo-depth = stereo_depth.cli:main",
+            "stereo_node = stereo_depth.nodes.stereo_node:main",
+            "disparity_node = stereo_depth.nodes.disparity_node:main",
+            "point_cloud_node = stereo_depth.nodes.point_cloud_node:main",
+            "rectify_node = stereo_depth.nodes.rectify_node:main",
+        ],
+    },
+)

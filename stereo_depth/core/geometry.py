@@ -1,0 +1,55 @@
+"""Disparity to depth and organized point clouds.
+
+Z = fx * B / (d - (cx_left - cx_right)); X and Y scale the pixel's ray by Z. The per-pixel rays depend
+only on the calibration, so they are computed once per calibration and reused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereo_depth.core.camera import StereoCamera
+
+
+@dataclass
+class Rays:
+    """(u - cx) / fx along a row and (v - cy) / fy down a column, for one calibration and size."""
+
+    x: np.ndarray  # shape (1, W)
+    y: np.ndarray  # shape (H, 1)
+
+    @classmethod
+    def for_camera(cls, camera: StereoCamera) -> Rays:
+        u = np.arange(camera.width, dtype=np.float32)
+        v = np.arange(camera.height, dtype=np.float32)
+        return cls(
+            x=((u - camera.cx_left) / camera.fx).reshape(1, -1).astype(np.float32),
+            y=((v - camera.cy) / camera.fy).reshape(-1, 1).astype(np.float32),
+        )
+
+
+def disparity_to_depth(disparity: np.ndarray, camera: StereoCamera, out: np.ndarray | None = None) -> np.ndarray:
+    """Depth in metres, NaN where the disparity is invalid or not in front of the camera."""
+    d = np.subtract(disparity, np.float32(camera.disparity_offset), out=out, dtype=np.float32)
+    d[~(d > 0)] = np.nan
+    np.divide(np.float32(camera.fx * camera.baseline), d, out=d)
+    return d
+
+
+def depth_to_points(depth: np.ndarray, rays: Rays, out: np.ndarray | None = None) -> np.ndarray:
+    """Organized (H, W, 3) float32 XYZ in the left optical frame (x right, y down, z forward); NaN invalid."""
+    h, w = depth.shape
+    if out is None:
+        out = np.empty((h, w, 3), dtype=np.float32)
+    np.multiply(depth, rays.x, out=out[:, :, 0])
+    np.multiply(depth, rays.y, out=out[:, :, 1])
+    out[:, :, 2] = depth
+    return out
+
+
+def depth_to_disparity(depth: np.ndarray, camera: StereoCamera) -> np.ndarray:
+    """Inverse of disparity_to_depth (used to check a cloud or a depth image against a disparity)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (camera.fx * camera.baseline / depth + camera.disparity_offset).astype(np.float32)

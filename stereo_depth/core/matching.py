@@ -1,0 +1,90 @@
+"""Matching cores behind one interface, chosen by name.
+
+A core turns a rectified grey pair into float32 disparity (left reference, d = x_left - x_right,
+NaN = invalid) and optionally a confidence in [0, 1]. The OpenCV cores keep their matcher object
+between frames; a parameter change builds a new core, never mutates one in use.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from stereo_depth.core.params import StereoParams
+
+
+@dataclass
+class MatchResult:
+    disparity: np.ndarray
+    confidence: np.ndarray | None = None
+
+
+class Matcher(Protocol):
+    def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
+        """left/right: rectified uint8 grey images of equal size."""
+        ...
+
+
+def fixed_point_to_float(raw: np.ndarray, min_disparity: int) -> np.ndarray:
+    """OpenCV's int16 disparity (x16) to float32 pixels; below min_disparity means invalid."""
+    disparity = raw.astype(np.float32)
+    disparity *= 1.0 / 16.0
+    disparity[raw < min_disparity * 16] = np.nan
+    return disparity
+
+
+class OpenCVMatcher:
+    """Wraps cv2.StereoBM / cv2.StereoSGBM (their speckle filter and LR check run inside OpenCV)."""
+
+    def __init__(self, stereo: cv2.StereoMatcher, min_disparity: int) -> None:
+        self._stereo = stereo
+        self._min_disparity = min_disparity
+
+    def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
+        raw = self._stereo.compute(left, right)
+        return MatchResult(fixed_point_to_float(raw, self._min_disparity))
+
+
+def create_bm(params: StereoParams) -> Matcher:
+    bm = cv2.StereoBM.create(params.disparity_range, params.correlation_window_size)
+    bm.setPreFilterType(cv2.StereoBM_PREFILTER_XSOBEL)
+    bm.setPreFilterSize(params.prefilter_size)
+    bm.setPreFilterCap(params.prefilter_cap)
+    bm.setMinDisparity(params.min_disparity)
+    bm.setTextureThreshold(params.texture_threshold)
+    bm.setUniquenessRatio(int(round(params.uniqueness_ratio)))
+    bm.setSpeckleWindowSize(params.speckle_size)
+    bm.setSpeckleRange(params.speckle_range)
+    bm.setDisp12MaxDiff(params.disp12_max_diff if params.disp12_max_diff > 0 else -1)
+    return OpenCVMatcher(bm, params.min_disparity)
+
+
+def create_sgbm(params: StereoParams) -> Matcher:
+    sgbm = cv2.StereoSGBM.create(
+        minDisparity=params.min_disparity,
+        numDisparities=params.disparity_range,
+        blockSize=params.correlation_window_size,
+        P1=int(round(params.P1)),
+        P2=int(round(params.P2)),
+        disp12MaxDiff=params.disp12_max_diff if params.disp12_max_diff > 0 else -1,
+        preFilterCap=params.prefilter_cap,
+        uniquenessRatio=int(round(params.uniqueness_ratio)),
+        speckleWindowSize=params.speckle_size,
+        speckleRange=params.speckle_range,
+        mode=params.sgbm_mode,
+    )
+    return OpenCVMatcher(sgbm, params.min_disparity)
+
+
+MATCHERS: dict[str, Callable[[StereoParams], Matcher]] = {
+    "bm": create_bm,
+    "sgbm": create_sgbm,
+}
+
+
+def create_matcher(params: StereoParams) -> Matcher:
+    return MATCHERS[params.matcher](params)

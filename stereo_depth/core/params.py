@@ -1,0 +1,201 @@
+"""Processing parameters: one dataclass holds every default once, profiles are named sets of values.
+
+Field names are the ROS parameter names (stereo_image_proc's where the meaning is the same), and each
+field carries its description and allowed range in its metadata, so the ROS layer declares its
+parameters from here and `config/stereo_depth.yaml` is checked against it. A profile only names the
+values that differ from the dataclass defaults; explicitly given values always override a profile.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from stereo_depth.errors import ParameterError
+
+SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
+
+
+def _spec(description: str, lo: float | None = None, hi: float | None = None, step: float = 0) -> dict[str, Any]:
+    return {"description": description, "min": lo, "max": hi, "step": step}
+
+
+@dataclass(frozen=True)
+class StereoParams:
+    """Everything that changes what the pipeline computes for a frame; defaults = the `default` profile."""
+
+    matcher: str = field(
+        default="sgbm",
+        metadata=_spec("Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global)"),
+    )
+    prefilter_size: int = field(default=9, metadata=_spec("BM normalization window size in pixels (odd)", 5, 255, 2))
+    prefilter_cap: int = field(default=31, metadata=_spec("Bound on normalized pixel values", 1, 63, 1))
+    correlation_window_size: int = field(
+        default=5, metadata=_spec("Matching window width in pixels (odd; BM needs >= 5)", 1, 255, 2)
+    )
+    min_disparity: int = field(default=0, metadata=_spec("Disparity to begin search at, pixels", -2048, 2048, 1))
+    disparity_range: int = field(
+        default=64, metadata=_spec("Number of disparities to search, pixels (multiple of 16)", 16, 4096, 16)
+    )
+    texture_threshold: int = field(
+        default=10, metadata=_spec("BM: reject windows whose texture response is below this", 0, 10000, 1)
+    )
+    uniqueness_ratio: float = field(
+        default=5.0, metadata=_spec("Reject if the best match is not this % better than the next best", 0.0, 100.0)
+    )
+    speckle_size: int = field(
+        default=100, metadata=_spec("Remove disparity blobs smaller than this many pixels (0 = off)", 0, 1000, 1)
+    )
+    speckle_range: int = field(
+        default=2, metadata=_spec("Largest disparity step inside one blob, pixels", 0, 31, 1)
+    )
+    disp12_max_diff: int = field(
+        default=1, metadata=_spec("SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
+    )
+    P1: float = field(default=200.0, metadata=_spec("SGBM penalty for disparity changes of 1 px", 0.0, 100000.0))
+    P2: float = field(
+        default=800.0, metadata=_spec("SGBM penalty for larger disparity changes (must exceed P1)", 0.0, 100000.0)
+    )
+    sgbm_mode: int = field(
+        default=2, metadata=_spec("SGBM variant: 0 SGBM (5 paths), 1 HH (8 paths), 2 SGBM_3WAY, 3 HH4", 0, 3, 1)
+    )
+    fill_holes: bool = field(
+        default=False, metadata=_spec("Fill invalid pixels from their neighbours for a dense depth image")
+    )
+    downsample: int = field(
+        default=1, metadata=_spec("Match at 1/downsample resolution (1, 2 or 4) for slow CPUs", 1, 4, 1)
+    )
+
+    def validate(self) -> StereoParams:
+        """Refuse values that OpenCV would reject or silently change, with the reason."""
+        from stereo_depth.core.matching import MATCHERS  # the registry lives with the matchers
+
+        checks: list[tuple[bool, str]] = [
+            (self.matcher in MATCHERS, f"matcher '{self.matcher}' is unknown; choose one of {sorted(MATCHERS)}"),
+            (self.disparity_range > 0 and self.disparity_range % 16 == 0,
+             f"disparity_range {self.disparity_range} must be a positive multiple of 16"),
+            (self.correlation_window_size % 2 == 1, f"correlation_window_size {self.correlation_window_size} must be odd"),
+            (self.matcher != "bm" or self.correlation_window_size >= 5,
+             f"correlation_window_size {self.correlation_window_size} is too small for bm (>= 5)"),
+            (self.prefilter_size % 2 == 1, f"prefilter_size {self.prefilter_size} must be odd"),
+            (self.P2 > self.P1, f"P2 ({self.P2}) must be greater than P1 ({self.P1})"),
+            (self.downsample in (1, 2, 4), f"downsample {self.downsample} must be 1, 2 or 4"),
+            (self.sgbm_mode in SGBM_MODES, f"sgbm_mode {self.sgbm_mode} must be one of {sorted(SGBM_MODES)}"),
+        ]
+        for f in dataclasses.fields(self):
+            spec = f.metadata
+            value = getattr(self, f.name)
+            if spec.get("min") is not None and not spec["min"] <= value <= spec["max"]:
+                checks.append((False, f"{f.name} {value} is outside [{spec['min']}, {spec['max']}]"))
+        for ok, reason in checks:
+            if not ok:
+                raise ParameterError(reason)
+        return self
+
+
+# stereo_image_proc's defaults exactly (Jazzy disparity_node), for drop-in comparisons.
+_STEREO_IMAGE_PROC: dict[str, Any] = {
+    "matcher": "bm",
+    "prefilter_size": 9,
+    "prefilter_cap": 31,
+    "correlation_window_size": 15,
+    "min_disparity": 0,
+    "disparity_range": 64,
+    "texture_threshold": 10,
+    "uniqueness_ratio": 15.0,
+    "speckle_size": 100,
+    "speckle_range": 4,
+    "disp12_max_diff": 0,
+    "P1": 200.0,
+    "P2": 400.0,
+    "sgbm_mode": 0,
+}
+
+# The dataclass defaults are the recommended profile (semi-global, 3-way, small window, LR check).
+PROFILES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "stereo_image_proc": _STEREO_IMAGE_PROC,
+    "fast": {
+        "matcher": "bm",
+        "correlation_window_size": 9,
+        "uniqueness_ratio": 10.0,
+        "texture_threshold": 5,
+        "fill_holes": True,
+        "downsample": 2,
+    },
+}
+
+# Aliases kept for stereo_image_proc parameter files: they map onto our fields.
+COMPAT_ALIASES = ("stereo_algorithm", "full_dp")
+
+
+def field_names() -> list[str]:
+    return [f.name for f in dataclasses.fields(StereoParams)]
+
+
+def coerce(name: str, value: Any) -> Any:
+    """Convert a value given as text or a looser type (CLI, YAML) to the field's type."""
+    types = {f.name: f.type for f in dataclasses.fields(StereoParams)}
+    kind = types[name]
+    try:
+        if kind in ("bool", bool):
+            if isinstance(value, str):
+                if value.lower() in ("true", "1", "yes", "on"):
+                    return True
+                if value.lower() in ("false", "0", "no", "off"):
+                    return False
+                raise ValueError(value)
+            return bool(value)
+        if kind in ("int", int):
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError(value)
+            return int(value)
+        if kind in ("float", float):
+            return float(value)
+        return str(value)
+    except (TypeError, ValueError) as exc:
+        msg = f"{name}: {value!r} is not a valid {kind}"
+        raise ParameterError(msg) from exc
+
+
+def translate_aliases(overrides: dict[str, Any]) -> dict[str, Any]:
+    """Map stereo_image_proc's stereo_algorithm (0 BM, 1 SGBM) and full_dp onto matcher / sgbm_mode."""
+    out = dict(overrides)
+    if "stereo_algorithm" in out:
+        algorithm = out.pop("stereo_algorithm")
+        names = {0: "bm", 1: "sgbm"}
+        if int(algorithm) not in names:
+            msg = f"stereo_algorithm {algorithm} must be 0 (block matching) or 1 (semi-global)"
+            raise ParameterError(msg)
+        out.setdefault("matcher", names[int(algorithm)])
+    if "full_dp" in out:
+        if coerce("fill_holes", out.pop("full_dp")):  # same bool parsing as any bool field
+            out.setdefault("sgbm_mode", 1)
+    return out
+
+
+def make_params(profile: str = "default", overrides: dict[str, Any] | None = None) -> StereoParams:
+    """The profile's values with `overrides` on top, validated; raises ParameterError with the reason."""
+    if profile not in PROFILES:
+        msg = f"profile '{profile}' is unknown; choose one of {sorted(PROFILES)}"
+        raise ParameterError(msg)
+    values = dict(PROFILES[profile])
+    for name, value in translate_aliases(overrides or {}).items():
+        if name not in field_names():
+            msg = f"unknown parameter '{name}'; known: {', '.join(field_names())}"
+            raise ParameterError(msg)
+        values[name] = coerce(name, value)
+    return StereoParams(**values).validate()
+
+
+def parse_assignments(items: list[str]) -> dict[str, str]:
+    """Parse CLI `name=value` items."""
+    out: dict[str, str] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            msg = f"--set expects name=value, got '{item}'"
+            raise ParameterError(msg)
+        out[name.strip()] = value.strip()
+    return out

@@ -1,0 +1,184 @@
+"""StereoPipeline: one calibrated pair in, disparity / depth / points out, with per-stage timings.
+
+The live nodes and the offline bag tools call this same object, so both give bit-identical results.
+It keeps what depends only on the calibration (rectification maps, pixel rays) and on the parameters
+(the matcher) between frames, and rebuilds them only when those change.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.filters import fill_holes_scanline
+from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
+from stereo_depth.core.matching import Matcher, MatchResult, create_matcher
+from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.errors import ImageError
+
+STAGES = ("rectify", "match", "filter", "depth", "points")
+
+
+@dataclass
+class StereoResult:
+    camera: StereoCamera | None  # None: disparity only (no calibration known)
+    left_rect: np.ndarray  # uint8 grey, rectified
+    left_rect_color: np.ndarray | None  # uint8 BGR, rectified, when the input had colour
+    disparity: np.ndarray  # float32, d = x_left - x_right (not offset-adjusted), NaN invalid
+    confidence: np.ndarray | None
+    depth: np.ndarray | None  # float32 metres, NaN invalid
+    points: np.ndarray | None  # (H, W, 3) float32, NaN invalid
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def to_grey8(image: np.ndarray, scale: float) -> np.ndarray:
+    """The matchers want 8-bit grey: colour is converted, 16-bit scaled by `scale`."""
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=scale)
+    return image
+
+
+def _grey_scale(left: np.ndarray, right: np.ndarray) -> float:
+    """One 16-bit to 8-bit scale for both images, so the pair stays photometrically consistent."""
+    if left.dtype == np.uint8:
+        return 1.0
+    peak = max(int(left.max(initial=0)), int(right.max(initial=0)), 1)
+    return 255.0 / peak
+
+
+def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
+    if left.shape[:2] != right.shape[:2]:
+        msg = (
+            f"left image is {left.shape[1]}x{left.shape[0]} but right is {right.shape[1]}x{right.shape[0]}; "
+            "a stereo pair must have one resolution"
+        )
+        raise ImageError(msg)
+    if left.size == 0:
+        msg = "image is empty (0 pixels)"
+        raise ImageError(msg)
+
+
+class StereoPipeline:
+    """Reusable per-stream processor; not thread-safe for concurrent `process` calls."""
+
+    def __init__(self, params: StereoParams | None = None) -> None:
+        self._state: tuple[StereoParams, Matcher] = self._build(params or make_params())
+        self._camera: StereoCamera | None = None
+        self._rays: dict[tuple[object, ...], Rays] = {}
+        self.calibrations_built = 0
+
+    @staticmethod
+    def _build(params: StereoParams) -> tuple[StereoParams, Matcher]:
+        return params, create_matcher(_scaled(params.validate(), params.downsample))
+
+    @property
+    def params(self) -> StereoParams:
+        return self._state[0]
+
+    def set_params(self, params: StereoParams) -> None:
+        """Swap parameters and matcher in one assignment: a frame sees the old set or the new one."""
+        self._state = self._build(params)
+
+    def camera_for(self, left: CameraInfo, right: CameraInfo) -> StereoCamera:
+        """The StereoCamera for this calibration; rebuilt (maps included) only when it changes."""
+        camera = self._camera
+        if camera is None or camera.left != left or camera.right != right:
+            camera = StereoCamera(left, right)
+            self._camera = camera
+            self.calibrations_built += 1
+        return camera
+
+    def process(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        camera: StereoCamera | None,
+        *,
+        rectified: bool = False,
+        want_points: bool = True,
+    ) -> StereoResult:
+        params, matcher = self._state
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        _check_pair(left, right)
+        scale = _grey_scale(left, right)
+        color = left if left.ndim == 3 else None
+        grey_l, grey_r = to_grey8(left, scale), to_grey8(right, scale)
+        if not rectified:
+            if camera is None:
+                msg = "raw images need a calibration to be rectified"
+                raise ImageError(msg)
+            grey_l = camera.rectify(grey_l, "left")
+            grey_r = camera.rectify(grey_r, "right")
+            if color is not None:
+                color = camera.rectify(color, "left")
+        elif camera is not None and grey_l.shape[:2] != (camera.height, camera.width):
+            msg = (
+                f"rectified image is {grey_l.shape[1]}x{grey_l.shape[0]} but camera_info says "
+                f"{camera.width}x{camera.height}"
+            )
+            raise ImageError(msg)
+        t1 = time.perf_counter()
+        factor = params.downsample
+        match = matcher.compute(*_shrink(grey_l, grey_r, factor))
+        t2 = time.perf_counter()
+        if params.fill_holes:
+            match.disparity = fill_holes_scanline(match.disparity)
+        if factor > 1:
+            _enlarge(match, grey_l.shape, factor)
+        disparity = match.disparity
+        t3 = time.perf_counter()
+        depth = disparity_to_depth(disparity, camera) if camera is not None else None
+        t4 = time.perf_counter()
+        points = None
+        if want_points and camera is not None and depth is not None:
+            points = depth_to_points(depth, self._rays_for(camera))
+        t5 = time.perf_counter()
+        for name, start, end in zip(STAGES, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
+            timings[name] = (end - start) * 1000.0
+        return StereoResult(camera, grey_l, color, disparity, match.confidence, depth, points, timings)
+
+    def _rays_for(self, camera: StereoCamera) -> Rays:
+        key = camera.key()
+        if key not in self._rays:
+            self._rays = {key: Rays.for_camera(camera)}
+        return self._rays[key]
+
+
+def _scaled(params: StereoParams, factor: int) -> StereoParams:
+    """Matcher parameters for images shrunk by `factor` (disparities shrink with them)."""
+    if factor == 1:
+        return params
+    span = -(-params.disparity_range // factor)
+    return dataclasses.replace(
+        params,
+        disparity_range=max(16, -(-span // 16) * 16),
+        min_disparity=params.min_disparity // factor,
+        downsample=1,
+    )
+
+
+def _shrink(left: np.ndarray, right: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:
+    if factor == 1:
+        return left, right
+    h, w = left.shape
+    small = (max(1, w // factor), max(1, h // factor))
+    return (
+        cv2.resize(left, small, interpolation=cv2.INTER_AREA),
+        cv2.resize(right, small, interpolation=cv2.INTER_AREA),
+    )
+
+
+def _enlarge(match: MatchResult, shape: tuple[int, ...], factor: int) -> None:
+    """Back to full size: disparities scale with the image; nearest keeps NaN holes as holes."""
+    size = (shape[1], shape[0])
+    match.disparity = cv2.resize(match.disparity * np.float32(factor), size, interpolation=cv2.INTER_NEAREST)
+    if match.confidence is not None:
+        match.confidence = cv2.resize(match.confidence, size, interpolation=cv2.INTER_NEAREST)

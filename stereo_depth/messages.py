@@ -1,0 +1,310 @@
+"""Message <-> array conversion by field names, for rclpy messages and rosbags messages alike.
+
+This module imports neither ROS nor rosbags: callers hand in a `MessageTypes` (the classes of their
+flavour) and get messages of that flavour back. Every image encoding, row padding, byte order and
+point-cloud layout detail lives here and nowhere else.
+
+Reading never copies when it does not have to (np.frombuffer over the message buffer); writing copies
+each buffer once (rclpy's setter takes an array.array without looking at every element).
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.errors import ImageError
+
+# encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
+_BAYER = {
+    "bayer_rggb8": cv2.COLOR_BayerRGGB2BGR if hasattr(cv2, "COLOR_BayerRGGB2BGR") else cv2.COLOR_BayerBG2BGR,
+    "bayer_bggr8": cv2.COLOR_BayerBGGR2BGR if hasattr(cv2, "COLOR_BayerBGGR2BGR") else cv2.COLOR_BayerRG2BGR,
+    "bayer_gbrg8": cv2.COLOR_BayerGBRG2BGR if hasattr(cv2, "COLOR_BayerGBRG2BGR") else cv2.COLOR_BayerGR2BGR,
+    "bayer_grbg8": cv2.COLOR_BayerGRBG2BGR if hasattr(cv2, "COLOR_BayerGRBG2BGR") else cv2.COLOR_BayerGB2BGR,
+}
+ENCODINGS: dict[str, tuple[str, int, int | None]] = {
+    "mono8": ("u1", 1, None),
+    "8UC1": ("u1", 1, None),
+    "mono16": ("u2", 1, None),
+    "16UC1": ("u2", 1, None),
+    "bgr8": ("u1", 3, None),
+    "8UC3": ("u1", 3, None),
+    "rgb8": ("u1", 3, cv2.COLOR_RGB2BGR),
+    "bgra8": ("u1", 4, cv2.COLOR_BGRA2BGR),
+    "rgba8": ("u1", 4, cv2.COLOR_RGBA2BGR),
+    "bgr16": ("u2", 3, None),
+    "rgb16": ("u2", 3, cv2.COLOR_RGB2BGR),
+    **{name: ("u1", 1, code) for name, code in _BAYER.items()},
+    **{name.replace("8", "16"): ("u2", 1, code) for name, code in _BAYER.items()},
+}
+DEFAULT_MAX_PIXELS = 4096 * 4096
+
+
+@dataclass(frozen=True)
+class MessageTypes:
+    """The message classes of one flavour (rclpy's generated classes or a rosbags typestore's)."""
+
+    Header: Any
+    Time: Any
+    Image: Any
+    CameraInfo: Any
+    RegionOfInterest: Any
+    DisparityImage: Any
+    PointCloud2: Any
+    PointField: Any
+
+    @property
+    def is_rosbags(self) -> bool:
+        return dataclasses.is_dataclass(self.Image)
+
+
+# ---------------------------------------------------------------- headers
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def make_header(types: MessageTypes, stamp_ns: int, frame_id: str) -> Any:
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return types.Header(stamp=types.Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def _bytes(types: MessageTypes, data: np.ndarray) -> Any:
+    flat = np.ascontiguousarray(data).reshape(-1).view(np.uint8)
+    if types.is_rosbags:
+        return flat
+    out = array.array("B")
+    out.frombytes(memoryview(flat))
+    return out
+
+
+def _floats(types: MessageTypes, values: np.ndarray) -> Any:
+    values = np.asarray(values, dtype=np.float64).ravel()
+    return values if types.is_rosbags else array.array("d", values.tobytes())
+
+
+# ---------------------------------------------------------------- images
+
+
+def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
+    """A view of the image's pixels, (H, W) or (H, W, C), in native byte order; row padding dropped."""
+    encoding = str(msg.encoding)
+    if encoding not in ENCODINGS:
+        if not encoding:
+            msg_text = "image has an empty encoding; the driver must set e.g. mono8 or bgr8"
+        else:
+            msg_text = (
+                f"image encoding '{encoding}' is not supported; use one of "
+                "mono8, mono16, bgr8, rgb8, bgra8, rgba8, bayer_* (8 or 16 bit)"
+            )
+        raise ImageError(msg_text)
+    dtype_code, channels, _ = ENCODINGS[encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height <= 0 or width <= 0:
+        msg_text = f"image is {width}x{height}: zero-sized"
+        raise ImageError(msg_text)
+    if height * width > max_pixels:
+        msg_text = f"image is {width}x{height}, more than the limit of {max_pixels} pixels (max_image_pixels)"
+        raise ImageError(msg_text)
+    dtype = np.dtype(dtype_code).newbyteorder(">" if msg.is_bigendian else "<")
+    row_bytes = width * channels * dtype.itemsize
+    if step < row_bytes:
+        msg_text = f"image step {step} is smaller than one row of {width} {encoding} pixels ({row_bytes} bytes)"
+        raise ImageError(msg_text)
+    buffer = np.frombuffer(msg.data, dtype=np.uint8)
+    if buffer.size != step * height:
+        msg_text = f"image data has {buffer.size} bytes but step x height = {step} x {height} = {step * height}"
+        raise ImageError(msg_text)
+    if step % dtype.itemsize:
+        msg_text = f"image step {step} is not a multiple of the {dtype.itemsize}-byte pixel component"
+        raise ImageError(msg_text)
+    rows = buffer.reshape(height, step)[:, :row_bytes]
+    pixels = rows.view(dtype).reshape(height, width, channels)
+    if channels == 1:
+        pixels = pixels[:, :, 0]
+    if not dtype.isnative:
+        pixels = pixels.astype(dtype.newbyteorder("="))
+    return pixels
+
+
+def image_to_pipeline(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
+    """Pixels as the pipeline takes them: mono (uint8 or uint16) or BGR uint8."""
+    encoding = str(msg.encoding)
+    pixels = image_to_array(msg, max_pixels)
+    code = ENCODINGS[encoding][2]
+    if code is not None:
+        pixels = cv2.cvtColor(pixels, code)
+    if pixels.ndim == 3 and pixels.dtype != np.uint8:
+        pixels = (pixels >> 8).astype(np.uint8)
+    return pixels
+
+
+def encoding_for(array_: np.ndarray) -> str:
+    if array_.dtype == np.float32 and array_.ndim == 2:
+        return "32FC1"
+    if array_.dtype == np.uint8:
+        return "mono8" if array_.ndim == 2 else "bgr8"
+    if array_.dtype == np.uint16 and array_.ndim == 2:
+        return "mono16"
+    msg = f"no image encoding for an array of {array_.dtype} with shape {array_.shape}"
+    raise ImageError(msg)
+
+
+def array_to_image(types: MessageTypes, header: Any, pixels: np.ndarray, encoding: str | None = None) -> Any:
+    encoding = encoding or encoding_for(pixels)
+    height, width = pixels.shape[:2]
+    step = width * pixels.itemsize * (pixels.shape[2] if pixels.ndim == 3 else 1)
+    return types.Image(
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=int(sys.byteorder == "big"),
+        step=step,
+        data=_bytes(types, pixels),
+    )
+
+
+# ---------------------------------------------------------------- camera info
+
+
+def camera_info_from_msg(msg: Any) -> CameraInfo:
+    return CameraInfo.from_values(
+        msg.width, msg.height, msg.k, msg.d, msg.r, msg.p, msg.distortion_model, msg.header.frame_id
+    )
+
+
+def camera_info_to_msg(types: MessageTypes, header: Any, info: CameraInfo) -> Any:
+    roi = types.RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return types.CameraInfo(
+        header=header,
+        height=info.height,
+        width=info.width,
+        distortion_model=info.distortion_model,
+        d=_floats(types, info.d),
+        k=np.asarray(info.k, np.float64).ravel(),
+        r=np.asarray(info.r, np.float64).ravel(),
+        p=np.asarray(info.p, np.float64).ravel(),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
+
+
+# ---------------------------------------------------------------- disparity
+
+
+def disparity_to_msg(
+    types: MessageTypes,
+    header: Any,
+    disparity: np.ndarray,
+    camera: StereoCamera,
+    min_disparity: int,
+    disparity_range: int,
+    valid_window: tuple[int, int, int, int],
+    delta_d: float = 1.0 / 16.0,
+) -> Any:
+    """stereo_msgs/DisparityImage as stereo_image_proc users read it.
+
+    The image holds d' = x_l - x_r - (cx_l - cx_r), so Z = f * t / d' with no further offset;
+    min/max_disparity are offset the same way, and invalid pixels hold min_disparity - 1.
+    """
+    offset = np.float32(camera.disparity_offset)
+    min_d = float(min_disparity) - float(offset)
+    image = np.subtract(disparity, offset, dtype=np.float32)
+    image[~np.isfinite(image)] = np.float32(min_d - 1.0)
+    x, y, w, h = valid_window
+    return types.DisparityImage(
+        header=header,
+        image=array_to_image(types, header, image, "32FC1"),
+        f=float(camera.fx),
+        t=float(camera.baseline),
+        valid_window=types.RegionOfInterest(x_offset=x, y_offset=y, height=h, width=w, do_rectify=False),
+        min_disparity=min_d,
+        max_disparity=min_d + float(disparity_range) - 1.0,
+        delta_d=float(delta_d),
+    )
+
+
+def disparity_from_msg(msg: Any) -> np.ndarray:
+    """The offset-adjusted disparity (Z = f * t / d) as float32 with NaN for invalid pixels."""
+    image = image_to_array(msg.image).astype(np.float32, copy=True)
+    image[~(image >= msg.min_disparity)] = np.nan
+    return image
+
+
+# ---------------------------------------------------------------- point clouds
+
+FLOAT32 = 7  # sensor_msgs/PointField FLOAT32
+
+
+def cloud_layout(with_color: bool, avoid_padding: bool) -> tuple[list[tuple[str, int]], int]:
+    """Field offsets and point_step as stereo_image_proc lays them out (PCL-style rgb)."""
+    if with_color:
+        return ([("x", 0), ("y", 4), ("z", 8), ("rgb", 12 if avoid_padding else 16)], 16 if avoid_padding else 32)
+    return ([("x", 0), ("y", 4), ("z", 8)], 12 if avoid_padding else 16)
+
+
+def pack_rgb(bgr: np.ndarray) -> np.ndarray:
+    """PCL's rgb: 0x00RRGGBB as uint32, read as float32 by consumers."""
+    b, g, r = (bgr[:, :, i].astype(np.uint32) for i in range(3))
+    return (r << 16) | (g << 8) | b
+
+
+def points_to_cloud(
+    types: MessageTypes,
+    header: Any,
+    points: np.ndarray,
+    color: np.ndarray | None = None,
+    avoid_padding: bool = False,
+) -> Any:
+    """Organized PointCloud2 (height x width), NaN for invalid points, is_dense false."""
+    height, width = points.shape[:2]
+    fields, point_step = cloud_layout(color is not None, avoid_padding)
+    buffer = np.zeros((height, width, point_step // 4), dtype=np.float32)
+    buffer[:, :, 0:3] = points
+    if color is not None:
+        grey = color if color.ndim == 3 else cv2.cvtColor(color, cv2.COLOR_GRAY2BGR)
+        buffer[:, :, fields[3][1] // 4] = pack_rgb(grey).view(np.float32)
+    return types.PointCloud2(
+        header=header,
+        height=height,
+        width=width,
+        fields=[types.PointField(name=n, offset=o, datatype=FLOAT32, count=1) for n, o in fields],
+        is_bigendian=sys.byteorder == "big",
+        point_step=point_step,
+        row_step=point_step * width,
+        data=_bytes(types, buffer),
+        is_dense=False,
+    )
+
+
+def cloud_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """(H, W, 3) xyz float32 and (H, W) uint32 rgb (or None), read by field name from any layout."""
+    offsets = {f.name: int(f.offset) for f in msg.fields}
+    for name in ("x", "y", "z"):
+        if name not in offsets:
+            msg_text = f"point cloud has no '{name}' field (fields: {sorted(offsets)})"
+            raise ImageError(msg_text)
+    endian = ">" if msg.is_bigendian else "<"
+    names = ["x", "y", "z"] + (["rgb"] if "rgb" in offsets else [])
+    dtype = np.dtype(
+        {
+            "names": names,
+            "formats": [endian + ("u4" if n == "rgb" else "f4") for n in names],
+            "offsets": [offsets[n] for n in names],
+            "itemsize": int(msg.point_step),
+        }
+    )
+    records = np.frombuffer(msg.data, dtype=dtype).reshape(int(msg.height), int(msg.width))
+    xyz = np.stack([records["x"], records["y"], records["z"]], axis=-1).astype(np.float32)
+    rgb = records["rgb"].astype(np.uint32) if "rgb" in offsets else None
+    return xyz, rgb
