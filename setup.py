@@ -22,7 +22,6 @@ setup(
     maintainer_email="maintainers@stereo-depth.invalid",
     description="Depth from a calibrated stereo camera, live on ROS 2 topics and offline on rosbag2 files",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "stereo-depth = stereo_depth.cli:main",

@@ -1,0 +1,144 @@
+"""Camera model: rectification of real raw pairs, depth from disparity, refusal of unusable calibrations."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import EUROC, SCENES
+from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
+from stereo_depth.errors import CalibrationError
+from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.scenes import load_scene
+
+
+@pytest.fixture(scope="module")
+def euroc_camera() -> StereoCamera:
+    return StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml"))
+
+
+def euroc_pair(index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    name = sorted((EUROC / "left").glob("*.png"))[index].name
+    return (
+        cv2.imread(str(EUROC / "left" / name), cv2.IMREAD_GRAYSCALE),
+        cv2.imread(str(EUROC / "right" / name), cv2.IMREAD_GRAYSCALE),
+    )
+
+
+def row_offsets(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """|y_left - y_right| of cross-checked ORB matches: 0 for a perfectly rectified pair."""
+    orb = cv2.ORB.create(2000)
+    kl, dl = orb.detectAndCompute(left, None)
+    kr, dr = orb.detectAndCompute(right, None)
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(dl, dr)
+    return np.array([abs(kl[m.queryIdx].pt[1] - kr[m.trainIdx].pt[1]) for m in matches])
+
+
+@pytest.mark.parametrize("index", [0, 3, 5])
+def test_raw_euroc_pair_is_rectified_to_common_rows(euroc_camera: StereoCamera, index: int) -> None:
+    left, right = euroc_pair(index)
+    before = row_offsets(left, right)
+    after = row_offsets(euroc_camera.rectify(left, "left"), euroc_camera.rectify(right, "right"))
+    assert np.median(before) > 5.0  # measured ~12 px: the raw pair is far from rectified
+    assert np.median(after) <= 1.0  # measured 0.0
+    assert len(after) > 200
+
+
+def test_euroc_calibration_gives_the_rig_baseline(euroc_camera: StereoCamera) -> None:
+    assert euroc_camera.baseline == pytest.approx(0.1101, abs=0.0005)  # EuRoC: 110.1 mm
+    assert euroc_camera.needs_rectification("left")
+
+
+def test_rectification_maps_are_built_once_per_calibration(euroc_camera: StereoCamera) -> None:
+    left, _ = euroc_pair()
+    euroc_camera.rectify(left, "left")
+    maps = euroc_camera.rectification_maps("left")
+    euroc_camera.rectify(left, "left")
+    assert euroc_camera.rectification_maps("left") is maps
+
+
+def test_rotation_is_applied_even_without_distortion(euroc_camera: StereoCamera) -> None:
+    left = dataclasses.replace(euroc_camera.left, d=np.zeros(5))
+    camera = StereoCamera(left, euroc_camera.right)
+    image, _ = euroc_pair()
+    assert camera.needs_rectification("left")
+    assert not np.array_equal(camera.rectify(image, "left"), image)
+
+
+def test_depth_from_disparity_follows_the_middlebury_calibration() -> None:
+    scene = load_scene(SCENES / "artl")
+    assert scene.gt is not None
+    camera = StereoCamera(*scene.camera_infos())
+    depth = disparity_to_depth(scene.gt, camera)
+    f, baseline_m, doffs = 935.0, 0.160, 50.0  # calib.txt: Z = baseline * f / (d + doffs)
+    expected = baseline_m * f / (scene.gt + doffs)
+    valid = np.isfinite(scene.gt)
+    assert camera.disparity_offset == pytest.approx(-doffs)
+    np.testing.assert_allclose(depth[valid], expected[valid], rtol=1e-5)
+    assert np.isnan(depth[~valid]).all()
+
+
+def test_points_reproject_to_their_pixels() -> None:
+    scene = load_scene(SCENES / "artl")
+    assert scene.gt is not None
+    camera = StereoCamera(*scene.camera_infos())
+    depth = disparity_to_depth(scene.gt, camera)
+    points = depth_to_points(depth, Rays.for_camera(camera))
+    v, u = np.nonzero(np.isfinite(depth))
+    x, y, z = points[v, u, 0], points[v, u, 1], points[v, u, 2]
+    np.testing.assert_allclose(camera.fx * x / z + camera.cx_left, u, atol=1e-3)
+    np.testing.assert_allclose(camera.fy * y / z + camera.cy, v, atol=1e-3)
+    # the Q matrix agrees with our direct formula (OpenCV's reprojection of the matched disparity)
+    q_points = cv2.reprojectImageTo3D(np.nan_to_num(scene.gt, nan=-1e6).astype(np.float32), camera.q)
+    np.testing.assert_allclose(q_points[v, u], points[v, u], rtol=1e-4)
+
+
+def good_pair() -> tuple[CameraInfo, CameraInfo]:
+    return load_scene(SCENES / "artl").camera_infos()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda l, r: (dataclasses.replace(l, k=np.zeros((3, 3))), r), "uncalibrated"),
+        (lambda l, r: (l, dataclasses.replace(r, p=np.zeros((3, 4)))), "uncalibrated"),
+        (lambda l, r: (dataclasses.replace(l, d=np.array([np.nan, 0, 0, 0, 0])), r), "NaN"),
+        (lambda l, r: (l, dataclasses.replace(r, width=r.width + 2)), "same resolution"),
+        (lambda l, r: (l, dataclasses.replace(r, p=np.hstack([r.p[:, :3], np.zeros((3, 1))]))), "baseline"),
+        (lambda l, r: (l, dataclasses.replace(r, p=r.p * np.array([1, 1, 1, -1]))), "swapped"),
+        (lambda l, r: (dataclasses.replace(l, distortion_model="fancy", d=np.ones(5)), r), "unknown distortion"),
+    ],
+    ids=["zero K", "zero P", "NaN", "size mismatch", "zero baseline", "right on the left", "unknown model"],
+)
+def test_unusable_calibrations_are_refused_with_the_reason(change, message: str) -> None:  # type: ignore[no-untyped-def]
+    left, right = change(*good_pair())
+    with pytest.raises(CalibrationError, match=message):
+        StereoCamera(left, right)
+
+
+def test_image_of_another_size_than_its_calibration_is_refused(euroc_camera: StereoCamera) -> None:
+    left, _ = euroc_pair()
+    with pytest.raises(CalibrationError, match="752x480"):
+        euroc_camera.rectify(left[:200], "left")
+
+
+def test_rational_polynomial_with_plumb_bob_terms_rectifies_like_plumb_bob(euroc_camera: StereoCamera) -> None:
+    left = dataclasses.replace(
+        euroc_camera.left, distortion_model="rational_polynomial", d=np.concatenate([euroc_camera.left.d, np.zeros(3)])
+    )
+    camera = StereoCamera(left, euroc_camera.right)
+    image, _ = euroc_pair()
+    assert np.array_equal(camera.rectify(image, "left"), euroc_camera.rectify(image, "left"))
+
+
+def test_equidistant_model_builds_fisheye_maps(euroc_camera: StereoCamera) -> None:
+    left = dataclasses.replace(euroc_camera.left, distortion_model="equidistant", d=np.array([0.01, 0.0, 0.0, 0.0]))
+    camera = StereoCamera(left, euroc_camera.right)
+    image, _ = euroc_pair()
+    rectified = camera.rectify(image, "left")
+    assert rectified.shape == image.shape
+    assert rectified.mean() > 20  # the image is still there, not a black remap
