@@ -22,14 +22,14 @@ import numpy as np
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.errors import ImageError
 
-# encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
+# camera encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
 _BAYER = {
     "bayer_rggb8": cv2.COLOR_BayerRGGB2BGR if hasattr(cv2, "COLOR_BayerRGGB2BGR") else cv2.COLOR_BayerBG2BGR,
     "bayer_bggr8": cv2.COLOR_BayerBGGR2BGR if hasattr(cv2, "COLOR_BayerBGGR2BGR") else cv2.COLOR_BayerRG2BGR,
     "bayer_gbrg8": cv2.COLOR_BayerGBRG2BGR if hasattr(cv2, "COLOR_BayerGBRG2BGR") else cv2.COLOR_BayerGR2BGR,
     "bayer_grbg8": cv2.COLOR_BayerGRBG2BGR if hasattr(cv2, "COLOR_BayerGRBG2BGR") else cv2.COLOR_BayerGB2BGR,
 }
-ENCODINGS: dict[str, tuple[str, int, int | None]] = {
+CAMERA_ENCODINGS: dict[str, tuple[str, int, int | None]] = {
     "mono8": ("u1", 1, None),
     "8UC1": ("u1", 1, None),
     "mono16": ("u2", 1, None),
@@ -44,6 +44,15 @@ ENCODINGS: dict[str, tuple[str, int, int | None]] = {
     **{name: ("u1", 1, code) for name, code in _BAYER.items()},
     **{name.replace("8", "16"): ("u2", 1, code) for name, code in _BAYER.items()},
 }
+# what we read and write besides camera images (disparity and depth)
+ENCODINGS = {**CAMERA_ENCODINGS, "32FC1": ("f4", 1, None)}
+_SUPPORTED = "mono8, mono16, bgr8, rgb8, bgra8, rgba8, bayer_* (8 or 16 bit)"
+
+
+def _unsupported(encoding: str) -> ImageError:
+    if not encoding:
+        return ImageError("image has an empty encoding; the driver must set e.g. mono8 or bgr8")
+    return ImageError(f"image encoding '{encoding}' is not supported for camera images; use one of {_SUPPORTED}")
 DEFAULT_MAX_PIXELS = 4096 * 4096
 
 
@@ -98,14 +107,7 @@ def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray
     """A view of the image's pixels, (H, W) or (H, W, C), in native byte order; row padding dropped."""
     encoding = str(msg.encoding)
     if encoding not in ENCODINGS:
-        if not encoding:
-            msg_text = "image has an empty encoding; the driver must set e.g. mono8 or bgr8"
-        else:
-            msg_text = (
-                f"image encoding '{encoding}' is not supported; use one of "
-                "mono8, mono16, bgr8, rgb8, bgra8, rgba8, bayer_* (8 or 16 bit)"
-            )
-        raise ImageError(msg_text)
+        raise _unsupported(encoding)
     dtype_code, channels, _ = ENCODINGS[encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
@@ -138,8 +140,10 @@ def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray
 def image_to_pipeline(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
     """Pixels as the pipeline takes them: mono (uint8 or uint16) or BGR uint8."""
     encoding = str(msg.encoding)
+    if encoding not in CAMERA_ENCODINGS:
+        raise _unsupported(encoding)
     pixels = image_to_array(msg, max_pixels)
-    code = ENCODINGS[encoding][2]
+    code = CAMERA_ENCODINGS[encoding][2]
     if code is not None:
         pixels = cv2.cvtColor(pixels, code)
     if pixels.ndim == 3 and pixels.dtype != np.uint8:
