@@ -12,9 +12,7 @@ import pkgutil
 import sys
 
 import stereo_depth.commands
-
 from stereo_depth.errors import StereoDepthError
-
 
 
 def _command_modules() -> list[str]:

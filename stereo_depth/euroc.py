@@ -28,6 +28,9 @@ def read_sensor_yaml(path: Path) -> dict[str, Any]:
     except yaml.YAMLError as exc:
         msg = f"{path}: not valid YAML ({exc})"
         raise CalibrationError(msg) from exc
+    if not isinstance(data, dict):
+        msg = f"{path}: expected a mapping of EuRoC camera keys"
+        raise CalibrationError(msg)
     for key in ("T_BS", "resolution", "intrinsics", "distortion_coefficients"):
         if key not in data:
             msg = f"{path}: missing '{key}'; expected an EuRoC camera sensor.yaml"

@@ -53,6 +53,8 @@ def _unsupported(encoding: str) -> ImageError:
     if not encoding:
         return ImageError("image has an empty encoding; the driver must set e.g. mono8 or bgr8")
     return ImageError(f"image encoding '{encoding}' is not supported for camera images; use one of {_SUPPORTED}")
+
+
 DEFAULT_MAX_PIXELS = 4096 * 4096
 
 

@@ -108,7 +108,11 @@ def _find(folder: Path, stem: str) -> Path:
 
 def read_ground_truth(folder: Path, calib: dict[str, str]) -> np.ndarray | None:
     name = calib.get("gt_file")
-    path = folder / name if name else next((folder / n for n in ("disp_gt.pfm", "disp_gt.png") if (folder / n).exists()), None)
+    path = (
+        folder / name
+        if name
+        else next((folder / n for n in ("disp_gt.pfm", "disp_gt.png") if (folder / n).exists()), None)
+    )
     if path is None or not path.exists():
         return None
     if path.suffix == ".pfm":
@@ -136,5 +140,11 @@ def load_scene(folder: Path | str) -> Scene:
     mask = None
     if (folder / "mask_nonocc.png").exists():
         mask = _read_image(folder / "mask_nonocc.png", cv2.IMREAD_GRAYSCALE) == 255
-    return Scene(folder.name if folder.parent.name in ("", ".") else f"{folder.parent.name}/{folder.name}",
-                 left, right, calib, gt, mask)
+    return Scene(
+        folder.name if folder.parent.name in ("", ".") else f"{folder.parent.name}/{folder.name}",
+        left,
+        right,
+        calib,
+        gt,
+        mask,
+    )

@@ -92,7 +92,7 @@ class Synchronizer:
         self.counters.dropped_by_input[index] += 1
 
     def _collect(self) -> list[tuple[int, tuple[Any, ...]]]:
-        out = []
+        out: list[tuple[int, tuple[Any, ...]]] = []
         while True:
             found = self._find_exact() if not self.approximate else self._find_approximate()
             if found is None:

@@ -8,12 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import EUROC, SCENES
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import CalibrationError
 from stereo_depth.euroc import stereo_camera_infos
 from stereo_depth.scenes import load_scene
+
+from conftest import EUROC, SCENES
 
 
 @pytest.fixture(scope="module")
@@ -104,13 +105,13 @@ def good_pair() -> tuple[CameraInfo, CameraInfo]:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda l, r: (dataclasses.replace(l, k=np.zeros((3, 3))), r), "uncalibrated"),
-        (lambda l, r: (l, dataclasses.replace(r, p=np.zeros((3, 4)))), "uncalibrated"),
-        (lambda l, r: (dataclasses.replace(l, d=np.array([np.nan, 0, 0, 0, 0])), r), "NaN"),
-        (lambda l, r: (l, dataclasses.replace(r, width=r.width + 2)), "same resolution"),
-        (lambda l, r: (l, dataclasses.replace(r, p=np.hstack([r.p[:, :3], np.zeros((3, 1))]))), "baseline"),
-        (lambda l, r: (l, dataclasses.replace(r, p=r.p * np.array([1, 1, 1, -1]))), "swapped"),
-        (lambda l, r: (dataclasses.replace(l, distortion_model="fancy", d=np.ones(5)), r), "unknown distortion"),
+        (lambda lf, r: (dataclasses.replace(lf, k=np.zeros((3, 3))), r), "uncalibrated"),
+        (lambda lf, r: (lf, dataclasses.replace(r, p=np.zeros((3, 4)))), "uncalibrated"),
+        (lambda lf, r: (dataclasses.replace(lf, d=np.array([np.nan, 0, 0, 0, 0])), r), "NaN"),
+        (lambda lf, r: (lf, dataclasses.replace(r, width=r.width + 2)), "same resolution"),
+        (lambda lf, r: (lf, dataclasses.replace(r, p=np.hstack([r.p[:, :3], np.zeros((3, 1))]))), "baseline"),
+        (lambda lf, r: (lf, dataclasses.replace(r, p=r.p * np.array([1, 1, 1, -1]))), "swapped"),
+        (lambda lf, r: (dataclasses.replace(lf, distortion_model="fancy", d=np.ones(5)), r), "unknown distortion"),
     ],
     ids=["zero K", "zero P", "NaN", "size mismatch", "zero baseline", "right on the left", "unknown model"],
 )

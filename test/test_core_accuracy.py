@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import pytest
 
-from conftest import SCENES
 from stereo_depth.core.metrics import Accuracy, accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.scenes import load_scene
+
+from conftest import SCENES
 
 # measured bad-2 (missing counts as bad): default 0.277/0.219/0.074, fast 0.362/0.189/0.074,
 # stereo_image_proc 0.409/0.309/0.163 (artl/cones/tsukuba)

@@ -16,9 +16,19 @@ CLI = [sys.executable, "-m", "stereo_depth.cli"]
 
 def test_eval_prints_table_writes_json_and_pictures(tmp_path: Path) -> None:
     out = subprocess.run(
-        [*CLI, "eval", str(SCENES / "tsukuba"), str(SCENES / "artl"), "--json", str(tmp_path / "r.json"),
-         "--save", str(tmp_path / "pics")],
-        capture_output=True, text=True, check=True,
+        [
+            *CLI,
+            "eval",
+            str(SCENES / "tsukuba"),
+            str(SCENES / "artl"),
+            "--json",
+            str(tmp_path / "r.json"),
+            "--save",
+            str(tmp_path / "pics"),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
     )
     assert "mean (2 scenes, default)" in out.stdout
     report = json.loads((tmp_path / "r.json").read_text())
@@ -33,8 +43,9 @@ def test_eval_disparity_range_follows_calib_and_can_be_overridden(tmp_path: Path
     runs = {}
     for extra in ([], ["--set", "disparity_range=16"]):
         path = tmp_path / f"{len(extra)}.json"
-        subprocess.run([*CLI, "eval", str(SCENES / "artl"), "--json", str(path), *extra], check=True,
-                       capture_output=True)
+        subprocess.run(
+            [*CLI, "eval", str(SCENES / "artl"), "--json", str(path), *extra], check=True, capture_output=True
+        )
         runs[len(extra)] = json.loads(path.read_text())["mean"]
     # ArtL's disparities reach 55 px: a 16 px search finds almost none of them
     assert runs[2]["bad2"] > runs[0]["bad2"] + 0.5

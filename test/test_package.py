@@ -21,9 +21,22 @@ def install_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
         colcon = Path(shutil.which("colcon") or "colcon")
     work = tmp_path_factory.mktemp("ws")
     subprocess.run(
-        [str(colcon), "--log-base", str(work / "log"), "build", "--base-paths", str(ROOT),
-         "--build-base", str(work / "build"), "--install-base", str(work / "install")],
-        cwd=work, check=True, capture_output=True, env={**os.environ, "PYTHONWARNINGS": "ignore"},
+        [
+            str(colcon),
+            "--log-base",
+            str(work / "log"),
+            "build",
+            "--base-paths",
+            str(ROOT),
+            "--build-base",
+            str(work / "build"),
+            "--install-base",
+            str(work / "install"),
+        ],
+        cwd=work,
+        check=True,
+        capture_output=True,
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
     )
     return work / "install" / "stereo_depth"
 

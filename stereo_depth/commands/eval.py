@@ -77,4 +77,3 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.write_text(json.dumps({"profile": args.profile, "scenes": rows, "mean": mean}, indent=2))
     return 0
-

@@ -93,7 +93,10 @@ def _check_camera(info: CameraInfo, side: str) -> None:
         msg = f"{side} camera_info: image size {info.width}x{info.height} is empty; set width and height"
         raise CalibrationError(msg)
     if info.k[0, 0] <= 0 or info.k[1, 1] <= 0:
-        msg = f"{side} camera_info: K has no focal length (fx={info.k[0, 0]}, fy={info.k[1, 1]}); the camera is uncalibrated"
+        msg = (
+            f"{side} camera_info: K has no focal length (fx={info.k[0, 0]}, fy={info.k[1, 1]}); "
+            "the camera is uncalibrated"
+        )
         raise CalibrationError(msg)
     if info.p[0, 0] <= 0 or info.p[1, 1] <= 0:
         msg = f"{side} camera_info: P has no focal length (P[0,0]={info.p[0, 0]}); the camera is uncalibrated"
@@ -196,17 +199,12 @@ class StereoCamera:
 
     def needs_rectification(self, side: str) -> bool:
         """False only when remapping would be the identity (no distortion, R = I, K = P[:3,:3])."""
-        info = self.left if side == "left" else self.right
-        return bool(
-            np.any(info.d)
-            or not np.allclose(info.r, np.eye(3))
-            or not np.allclose(info.k, info.p[:, :3])
-        )
+        return needs_rectification(self.left if side == "left" else self.right)
 
     def rectification_maps(self, side: str) -> tuple[np.ndarray, np.ndarray]:
         """Fixed-point maps for cv2.remap (CV_16SC2), built on first use and cached."""
         if side not in self._maps:
-            self._maps[side] = _build_maps(self.left if side == "left" else self.right)
+            self._maps[side] = build_rectification_maps(self.left if side == "left" else self.right)
         return self._maps[side]
 
     def rectify(self, image: np.ndarray, side: str, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
@@ -222,13 +220,20 @@ class StereoCamera:
         return cv2.remap(image, map1, map2, interpolation)
 
 
-def _build_maps(info: CameraInfo) -> tuple[np.ndarray, np.ndarray]:
+def needs_rectification(info: CameraInfo) -> bool:
+    """False only when remapping would be the identity (no distortion, R = I, K = P[:3,:3]).
+
+    Public so a single-camera rectifier (rectify_node) takes exactly the same decision as the pair.
+    """
+    return bool(np.any(info.d) or not np.allclose(info.r, np.eye(3)) or not np.allclose(info.k, info.p[:, :3]))
+
+
+def build_rectification_maps(info: CameraInfo) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-point undistort+rectify maps (CV_16SC2) for one camera, into its P's image plane."""
     size = (info.width, info.height)
     new_k = info.p[:, :3]
     if info.distortion_model == "equidistant":
-        map1, map2 = cv2.fisheye.initUndistortRectifyMap(
-            info.k, info.d[:4], info.r, new_k, size, cv2.CV_16SC2
-        )
+        map1, map2 = cv2.fisheye.initUndistortRectifyMap(info.k, info.d[:4], info.r, new_k, size, cv2.CV_16SC2)
     else:
         map1, map2 = cv2.initUndistortRectifyMap(info.k, info.d, info.r, new_k, size, cv2.CV_16SC2)
     return map1, map2

@@ -30,9 +30,20 @@ class Rays:
         )
 
 
-def disparity_to_depth(disparity: np.ndarray, camera: StereoCamera, out: np.ndarray | None = None) -> np.ndarray:
-    """Depth in metres, NaN where the disparity is invalid or not in front of the camera."""
-    d = np.subtract(disparity, np.float32(camera.disparity_offset), out=out, dtype=np.float32)
+def disparity_to_depth(
+    disparity: np.ndarray,
+    camera: StereoCamera,
+    out: np.ndarray | None = None,
+    *,
+    offset_adjusted: bool = False,
+) -> np.ndarray:
+    """Depth in metres, NaN where the disparity is invalid or not in front of the camera.
+
+    `offset_adjusted`: the disparity already has cx_left - cx_right subtracted (a DisparityImage's
+    contents), so it must not be subtracted again; the arithmetic is otherwise the same, bit for bit.
+    """
+    offset = 0.0 if offset_adjusted else camera.disparity_offset
+    d = np.subtract(disparity, np.float32(offset), out=out, dtype=np.float32)
     d[~(d > 0)] = np.nan
     np.divide(np.float32(camera.fx * camera.baseline), d, out=d)
     return d
@@ -48,8 +59,3 @@ def depth_to_points(depth: np.ndarray, rays: Rays, out: np.ndarray | None = None
     out[:, :, 2] = depth
     return out
 
-
-def depth_to_disparity(depth: np.ndarray, camera: StereoCamera) -> np.ndarray:
-    """Inverse of disparity_to_depth (used to check a cloud or a depth image against a disparity)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return (camera.fx * camera.baseline / depth + camera.disparity_offset).astype(np.float32)

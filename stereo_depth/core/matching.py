@@ -56,7 +56,7 @@ def create_bm(params: StereoParams) -> Matcher:
     bm.setPreFilterCap(params.prefilter_cap)
     bm.setMinDisparity(params.min_disparity)
     bm.setTextureThreshold(params.texture_threshold)
-    bm.setUniquenessRatio(int(round(params.uniqueness_ratio)))
+    bm.setUniquenessRatio(round(params.uniqueness_ratio))
     bm.setSpeckleWindowSize(params.speckle_size)
     bm.setSpeckleRange(params.speckle_range)
     bm.setDisp12MaxDiff(params.disp12_max_diff if params.disp12_max_diff > 0 else -1)
@@ -68,16 +68,29 @@ def create_sgbm(params: StereoParams) -> Matcher:
         minDisparity=params.min_disparity,
         numDisparities=params.disparity_range,
         blockSize=params.correlation_window_size,
-        P1=int(round(params.P1)),
-        P2=int(round(params.P2)),
+        P1=round(params.P1),
+        P2=round(params.P2),
         disp12MaxDiff=params.disp12_max_diff if params.disp12_max_diff > 0 else -1,
         preFilterCap=params.prefilter_cap,
-        uniquenessRatio=int(round(params.uniqueness_ratio)),
+        uniquenessRatio=round(params.uniqueness_ratio),
         speckleWindowSize=params.speckle_size,
         speckleRange=params.speckle_range,
         mode=params.sgbm_mode,
     )
     return OpenCVMatcher(sgbm, params.min_disparity)
+
+
+def valid_window(width: int, height: int, params: StereoParams) -> tuple[int, int, int, int]:
+    """(x, y, width, height) of the pixels a window matcher can fill: DisparityImage.valid_window.
+
+    Columns left of min_disparity + disparity_range - 1 have no partner in the right image and half
+    a window is lost on every border (cv2.getValidDisparityROI's arithmetic).
+    """
+    whole = (0, 0, width, height)
+    x, y, w, h = cv2.getValidDisparityROI(
+        whole, whole, params.min_disparity, params.disparity_range, params.correlation_window_size
+    )
+    return int(x), int(y), int(w), int(h)
 
 
 MATCHERS: dict[str, Callable[[StereoParams], Matcher]] = {

@@ -47,9 +47,7 @@ class StereoParams:
     speckle_size: int = field(
         default=100, metadata=_spec("Remove disparity blobs smaller than this many pixels (0 = off)", 0, 1000, 1)
     )
-    speckle_range: int = field(
-        default=2, metadata=_spec("Largest disparity step inside one blob, pixels", 0, 31, 1)
-    )
+    speckle_range: int = field(default=2, metadata=_spec("Largest disparity step inside one blob, pixels", 0, 31, 1))
     disp12_max_diff: int = field(
         default=1, metadata=_spec("SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
     )
@@ -73,11 +71,18 @@ class StereoParams:
 
         checks: list[tuple[bool, str]] = [
             (self.matcher in MATCHERS, f"matcher '{self.matcher}' is unknown; choose one of {sorted(MATCHERS)}"),
-            (self.disparity_range > 0 and self.disparity_range % 16 == 0,
-             f"disparity_range {self.disparity_range} must be a positive multiple of 16"),
-            (self.correlation_window_size % 2 == 1, f"correlation_window_size {self.correlation_window_size} must be odd"),
-            (self.matcher != "bm" or self.correlation_window_size >= 5,
-             f"correlation_window_size {self.correlation_window_size} is too small for bm (>= 5)"),
+            (
+                self.disparity_range > 0 and self.disparity_range % 16 == 0,
+                f"disparity_range {self.disparity_range} must be a positive multiple of 16",
+            ),
+            (
+                self.correlation_window_size % 2 == 1,
+                f"correlation_window_size {self.correlation_window_size} must be odd",
+            ),
+            (
+                self.matcher != "bm" or self.correlation_window_size >= 5,
+                f"correlation_window_size {self.correlation_window_size} is too small for bm (>= 5)",
+            ),
             (self.prefilter_size % 2 == 1, f"prefilter_size {self.prefilter_size} must be odd"),
             (self.P2 > self.P1, f"P2 ({self.P2}) must be greater than P1 ({self.P1})"),
             (self.downsample in (1, 2, 4), f"downsample {self.downsample} must be 1, 2 or 4"),
@@ -163,15 +168,15 @@ def translate_aliases(overrides: dict[str, Any]) -> dict[str, Any]:
     """Map stereo_image_proc's stereo_algorithm (0 BM, 1 SGBM) and full_dp onto matcher / sgbm_mode."""
     out = dict(overrides)
     if "stereo_algorithm" in out:
-        algorithm = out.pop("stereo_algorithm")
-        names = {0: "bm", 1: "sgbm"}
-        if int(algorithm) not in names:
+        algorithm = str(out.pop("stereo_algorithm")).strip()
+        names = {"0": "bm", "1": "sgbm"}
+        if algorithm not in names:
             msg = f"stereo_algorithm {algorithm} must be 0 (block matching) or 1 (semi-global)"
             raise ParameterError(msg)
-        out.setdefault("matcher", names[int(algorithm)])
-    if "full_dp" in out:
-        if coerce("fill_holes", out.pop("full_dp")):  # same bool parsing as any bool field
-            out.setdefault("sgbm_mode", 1)
+        out.setdefault("matcher", names[algorithm])
+    # full_dp parses like any bool field; true selects the full 8-path variant
+    if "full_dp" in out and coerce("fill_holes", out.pop("full_dp")):
+        out.setdefault("sgbm_mode", 1)
     return out
 
 
