@@ -83,7 +83,7 @@ class CameraInfo:
         return hash(self.key())
 
 
-def _check_camera(info: CameraInfo, side: str) -> None:
+def check_camera_info(info: CameraInfo, side: str) -> None:
     for name in ("k", "d", "r", "p"):
         values = getattr(info, name)
         if not np.all(np.isfinite(values)):
@@ -121,8 +121,8 @@ class StereoCamera:
     _maps: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        _check_camera(self.left, "left")
-        _check_camera(self.right, "right")
+        check_camera_info(self.left, "left")
+        check_camera_info(self.right, "right")
         if (self.left.width, self.left.height) != (self.right.width, self.right.height):
             msg = (
                 f"left camera_info is {self.left.width}x{self.left.height} but right is "
