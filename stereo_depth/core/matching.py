@@ -93,9 +93,39 @@ def valid_window(width: int, height: int, params: StereoParams) -> tuple[int, in
     return int(x), int(y), int(w), int(h)
 
 
+class CensusSGMMatcher:
+    """Our own core (census cost, 8-path semi-global aggregation, LR check, sub-pixel, confidence).
+
+    numba compiles it on first use (then loads it from the cache), so it is imported only when chosen.
+    """
+
+    def __init__(self, params: StereoParams) -> None:
+        self._params = params
+
+    def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
+        from stereo_depth.core.census_sgm import census_sgm
+
+        p = self._params
+        disparity, confidence = census_sgm(
+            left,
+            right,
+            min_disparity=p.min_disparity,
+            num_disparities=p.disparity_range,
+            window_size=p.correlation_window_size,
+            P1=p.P1,
+            P2=p.P2,
+            uniqueness_ratio=p.uniqueness_ratio,
+            disp12_max_diff=p.disp12_max_diff,
+            speckle_size=p.speckle_size,
+            speckle_range=p.speckle_range,
+        )
+        return MatchResult(disparity, confidence)
+
+
 MATCHERS: dict[str, Callable[[StereoParams], Matcher]] = {
     "bm": create_bm,
     "sgbm": create_sgbm,
+    "census_sgm": CensusSGMMatcher,
 }
 
 

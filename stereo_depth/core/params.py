@@ -27,7 +27,10 @@ class StereoParams:
 
     matcher: str = field(
         default="sgbm",
-        metadata=_spec("Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global)"),
+        metadata=_spec(
+            "Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global), "
+            "census_sgm (our census + 8-path semi-global core with confidence)"
+        ),
     )
     prefilter_size: int = field(default=9, metadata=_spec("BM normalization window size in pixels (odd)", 5, 255, 2))
     prefilter_cap: int = field(default=31, metadata=_spec("Bound on normalized pixel values", 1, 63, 1))
@@ -51,15 +54,27 @@ class StereoParams:
     disp12_max_diff: int = field(
         default=1, metadata=_spec("SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
     )
-    P1: float = field(default=200.0, metadata=_spec("SGBM penalty for disparity changes of 1 px", 0.0, 100000.0))
+    P1: float = field(
+        default=200.0,
+        metadata=_spec(
+            "Smoothness penalty for disparity changes of 1 px (sgbm: grey levels, census_sgm: bits)", 0.0, 100000.0
+        ),
+    )
     P2: float = field(
         default=800.0, metadata=_spec("SGBM penalty for larger disparity changes (must exceed P1)", 0.0, 100000.0)
     )
     sgbm_mode: int = field(
         default=2, metadata=_spec("SGBM variant: 0 SGBM (5 paths), 1 HH (8 paths), 2 SGBM_3WAY, 3 HH4", 0, 3, 1)
     )
+    confidence_threshold: float = field(
+        default=0.0,
+        metadata=_spec("Invalidate pixels whose match confidence is below this (cores with confidence)", 0.0, 1.0),
+    )
     fill_holes: bool = field(
         default=False, metadata=_spec("Fill invalid pixels from their neighbours for a dense depth image")
+    )
+    hole_fill_radius: int = field(
+        default=3, metadata=_spec("Edge-aware smoothing radius of filled pixels (0 = plain background fill)", 0, 7, 1)
     )
     downsample: int = field(
         default=1, metadata=_spec("Match at 1/downsample resolution (1, 2 or 4) for slow CPUs", 1, 4, 1)
@@ -127,7 +142,16 @@ PROFILES: dict[str, dict[str, Any]] = {
         "uniqueness_ratio": 10.0,
         "texture_threshold": 5,
         "fill_holes": True,
+        "hole_fill_radius": 0,
         "downsample": 2,
+    },
+    "quality": {
+        "matcher": "census_sgm",
+        "correlation_window_size": 1,
+        "P1": 20.0,
+        "P2": 300.0,
+        "uniqueness_ratio": 3.0,
+        "disp12_max_diff": 1,
     },
 }
 

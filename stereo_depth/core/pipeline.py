@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.filters import fill_holes_scanline
+from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher
 from stereo_depth.core.params import StereoParams, make_params
@@ -127,10 +127,13 @@ class StereoPipeline:
             raise ImageError(msg)
         t1 = time.perf_counter()
         factor = params.downsample
-        match = matcher.compute(*_shrink(grey_l, grey_r, factor))
+        grey_small, grey_r_small = _shrink(grey_l, grey_r, factor)
+        match = matcher.compute(grey_small, grey_r_small)
         t2 = time.perf_counter()
+        if match.confidence is not None and params.confidence_threshold > 0:
+            apply_confidence_threshold(match, params.confidence_threshold)
         if params.fill_holes:
-            match.disparity = fill_holes_scanline(match.disparity)
+            match.disparity = fill_holes(match.disparity, grey_small, radius=params.hole_fill_radius)
         if factor > 1:
             _enlarge(match, grey_l.shape, factor)
         disparity = match.disparity
