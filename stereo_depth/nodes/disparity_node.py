@@ -1,0 +1,50 @@
+"""disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from sensor_msgs.msg import CameraInfo, Image
+from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
+from stereo_depth.ros.stereo_io import StereoIONode, disparity_message, run_node, timed
+
+
+class DisparityNode(StereoIONode):
+    INPUTS = (
+        ("left/image_rect", Image),
+        ("left/camera_info", CameraInfo),
+        ("right/image_rect", Image),
+        ("right/camera_info", CameraInfo),
+    )
+    OPTIONS = INPUT_OPTIONS
+    WITH_STEREO = True
+
+    def __init__(self) -> None:
+        super().__init__("disparity_node")
+        self._disparity = self.output(DisparityImage, "disparity")
+
+    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+        assert self.pipeline is not None and settings.stereo is not None
+        left_msg, left_info, right_msg, right_info = messages
+        start = time.perf_counter()
+        left = self.read_image(0, left_msg, settings.options)
+        right = self.read_image(2, right_msg, settings.options)
+        camera = self.stereo_camera(1, left_info, 3, right_info)
+        stages: dict[str, float] = {}
+        timed(stages, "decode", start)
+        result = self.pipeline.process(left, right, camera, rectified=True, want_points=False)
+        start = time.perf_counter()
+        self._disparity.publish(disparity_message(left_msg.header, result.disparity, camera, settings.stereo))
+        timed(stages, "publish", start)
+        return {**result.timings_ms, **stages}
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(DisparityNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

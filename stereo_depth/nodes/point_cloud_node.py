@@ -1,0 +1,77 @@
+"""point_cloud_node: DisparityImage + rectified left image in, organized points2 out.
+
+Depth is computed from the message's offset-adjusted disparity with the same arithmetic as
+stereo_node, so the split chain and the all-in-one node give the same cloud bit for bit.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
+from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.errors import ImageError
+from stereo_depth.messages import disparity_from_msg
+from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
+from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, run_node, timed
+
+
+class PointCloudNode(StereoIONode):
+    INPUTS = (
+        ("left/image_rect_color", Image),
+        ("left/camera_info", CameraInfo),
+        ("right/camera_info", CameraInfo),
+        ("disparity", DisparityImage),
+    )
+    OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS)
+
+    def __init__(self) -> None:
+        super().__init__("point_cloud_node")
+        self.pipeline = StereoPipeline()  # only its calibration cache is used here
+        self._rays: tuple[tuple[object, ...], Rays] | None = None
+        self._points = self.output(PointCloud2, "points2")
+
+    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+        image_msg, left_info, right_info, disparity_msg = messages
+        start = time.perf_counter()
+        image = self.read_image(0, image_msg, settings.options)
+        camera = self.stereo_camera(1, left_info, 2, right_info)
+        disparity = self.read_input(3, disparity_from_msg, disparity_msg)
+        self._check_sizes(image.shape[:2], disparity.shape, camera)
+        stages: dict[str, float] = {}
+        timed(stages, "decode", start)
+        start = time.perf_counter()
+        points = depth_to_points(disparity_to_depth(disparity, camera, offset_adjusted=True), self._rays_for(camera))
+        timed(stages, "points", start)
+        start = time.perf_counter()
+        self._points.publish(cloud_message(image_msg.header, points, image, settings.options))
+        timed(stages, "publish", start)
+        return stages
+
+    def _check_sizes(self, image: tuple[int, ...], disparity: tuple[int, ...], camera: StereoCamera) -> None:
+        expected = (camera.height, camera.width)
+        for index, shape in ((0, image), (3, disparity)):
+            if tuple(shape) != expected:
+                msg = (
+                    f"{self.topics[index]}: {shape[1]}x{shape[0]} but camera_info says "
+                    f"{camera.width}x{camera.height}; remap the topics of one camera together"
+                )
+                raise ImageError(msg)
+
+    def _rays_for(self, camera: StereoCamera) -> Rays:
+        if self._rays is None or self._rays[0] != camera.key():
+            self._rays = (camera.key(), Rays.for_camera(camera))
+        return self._rays[1]
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(PointCloudNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

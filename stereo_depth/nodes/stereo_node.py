@@ -1,0 +1,85 @@
+"""stereo_node: raw stereo pair in, rectified left, disparity, depth and points2 out, in one process.
+
+The node most users run: no intermediate topics, so no extra serialization of full-size images.
+Topics and parameters are stereo_image_proc's (see README); `profile:=stereo_image_proc` gives its
+defaults.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.core.pipeline import StereoResult
+from stereo_depth.messages import array_to_image
+from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
+from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, disparity_message, run_node, timed
+from stereo_depth.ros.types import RCLPY_TYPES
+
+
+class StereoNode(StereoIONode):
+    INPUTS = (
+        ("left/image_raw", Image),
+        ("left/camera_info", CameraInfo),
+        ("right/image_raw", Image),
+        ("right/camera_info", CameraInfo),
+    )
+    OPTIONS = (
+        *INPUT_OPTIONS,
+        *CLOUD_OPTIONS,
+        "publish_rectified",
+        "publish_disparity",
+        "publish_depth",
+        "publish_points",
+    )
+    WITH_STEREO = True
+
+    def __init__(self) -> None:
+        super().__init__("stereo_node")
+        self._rect = self.output(Image, "left/image_rect")
+        self._rect_color = self.output(Image, "left/image_rect_color")
+        self._disparity = self.output(DisparityImage, "disparity")
+        self._depth = self.output(Image, "depth")
+        self._points = self.output(PointCloud2, "points2")
+
+    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+        assert self.pipeline is not None and settings.stereo is not None
+        left_msg, left_info, right_msg, right_info = messages
+        options = settings.options
+        start = time.perf_counter()
+        left = self.read_image(0, left_msg, options)
+        right = self.read_image(2, right_msg, options)
+        camera = self.stereo_camera(1, left_info, 3, right_info)
+        stages: dict[str, float] = {}
+        timed(stages, "decode", start)
+        want_points = self.wanted(self._points, options.publish_points)
+        result = self.pipeline.process(left, right, camera, want_points=want_points)
+        start = time.perf_counter()
+        self._publish(left_msg.header, result, settings, options)
+        timed(stages, "publish", start)
+        return {**result.timings_ms, **stages}
+
+    def _publish(self, header: Any, result: StereoResult, settings: Settings, options: NodeOptions) -> None:
+        assert result.camera is not None and settings.stereo is not None
+        if self.wanted(self._rect, options.publish_rectified):
+            self._rect.publish(array_to_image(RCLPY_TYPES, header, result.left_rect))
+        if result.left_rect_color is not None and self.wanted(self._rect_color, options.publish_rectified):
+            self._rect_color.publish(array_to_image(RCLPY_TYPES, header, result.left_rect_color))
+        if self.wanted(self._disparity, options.publish_disparity):
+            self._disparity.publish(disparity_message(header, result.disparity, result.camera, settings.stereo))
+        if result.depth is not None and self.wanted(self._depth, options.publish_depth):
+            self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
+        if result.points is not None:
+            color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+            self._points.publish(cloud_message(header, result.points, color, options))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(StereoNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,150 @@
+"""What a node reports on `diagnostics` about once a second, and the counters behind it.
+
+Rates and losses are what users need to see first when depth looks wrong: an input that arrives
+slower than its camera sends (QoS mismatch, DDS fragments lost, a CPU that cannot keep up) shows as
+`<topic> missing` here before it shows as holes in the point cloud.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from stereo_depth.core.pipeline import STAGES
+
+WINDOW = 50  # messages per input used to estimate rates
+RECENT_FRAMES = 30  # frames averaged for stage times and latency
+
+
+@dataclass
+class RateMonitor:
+    """Arrival rate of one input versus the rate its publisher sends, judged from header stamps.
+
+    The sender's period is the smallest typical stamp step (10th percentile): with half the frames
+    lost some consecutive pairs still arrive, so the period is not mistaken for twice its value.
+    """
+
+    stamps: deque[tuple[int, float]] = field(default_factory=lambda: deque(maxlen=WINDOW))
+    lost_reported: int = 0  # DDS "message lost" events
+
+    def add(self, stamp_ns: int, arrival_s: float) -> None:
+        if self.stamps and stamp_ns <= self.stamps[-1][0]:
+            self.stamps.clear()  # a time jump (bag loop, restarted driver) starts a new estimate
+        self.stamps.append((stamp_ns, arrival_s))
+
+    def received_hz(self, now_s: float) -> float:
+        recent = [t for _, t in self.stamps if now_s - t <= 2.0]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
+
+    def sender_hz(self) -> float:
+        steps = sorted(b[0] - a[0] for a, b in zip(self.stamps, list(self.stamps)[1:], strict=False))
+        if not steps:
+            return 0.0
+        period = steps[len(steps) // 10]
+        return 1e9 / period if period > 0 else 0.0
+
+    def missing(self) -> int:
+        """Frames the stamps say were sent within the window but never arrived."""
+        hz = self.sender_hz()
+        if hz <= 0:
+            return 0
+        span_s = (self.stamps[-1][0] - self.stamps[0][0]) / 1e9
+        return max(0, round(span_s * hz) + 1 - len(self.stamps))
+
+
+class NodeDiagnostics:
+    """Thread-safe counters (callbacks and the worker both write) and their DiagnosticArray."""
+
+    def __init__(self, node_name: str, inputs: list[str]) -> None:
+        self._name = node_name
+        self._lock = threading.Lock()
+        self.inputs = {topic: RateMonitor() for topic in inputs}
+        self._outputs: deque[float] = deque(maxlen=WINDOW)
+        self._stage_ms: dict[str, deque[float]] = {}  # the last RECENT_FRAMES frames
+        self._latency_s: deque[float] = deque(maxlen=RECENT_FRAMES)
+        self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
+        self.unmatched = 0  # messages the synchronizer discarded (no partner, queue overflow, stale)
+        self.processed = 0
+        self.last_error = ""
+        self._last_error_at = 0.0
+
+    def input_received(self, topic: str, stamp_ns: int) -> None:
+        with self._lock:
+            self.inputs[topic].add(stamp_ns, time.monotonic())
+
+    def input_lost(self, topic: str, count: int) -> None:
+        with self._lock:
+            self.inputs[topic].lost_reported += count
+
+    def frame_done(self, stage_ms: dict[str, float], latency_s: float) -> None:
+        with self._lock:
+            self.processed += 1
+            self._outputs.append(time.monotonic())
+            for stage, ms in stage_ms.items():
+                self._stage_ms.setdefault(stage, deque(maxlen=RECENT_FRAMES)).append(ms)
+            self._latency_s.append(latency_s)
+
+    def add_dropped(self, count: int) -> None:
+        with self._lock:
+            self.dropped += count
+
+    def add_unmatched(self, count: int) -> None:
+        if count:
+            with self._lock:
+                self.unmatched += count
+
+    def error(self, text: str) -> None:
+        with self._lock:
+            self.last_error = text
+            self._last_error_at = time.monotonic()
+
+    def report(self, header: object) -> DiagnosticArray:
+        """Rates over the last seconds; times are means over the last RECENT_FRAMES frames."""
+        now = time.monotonic()
+        with self._lock:
+            values = self._values(now)
+            level, message = self._level(now)
+        status = DiagnosticStatus(
+            level=level,
+            name=f"{self._name}: stereo processing",
+            message=message,
+            hardware_id=self._name,
+            values=[KeyValue(key=k, value=v) for k, v in values],
+        )
+        return DiagnosticArray(header=header, status=[status])
+
+    def _values(self, now: float) -> list[tuple[str, str]]:
+        values = []
+        for topic, monitor in self.inputs.items():
+            values.append((f"{topic} rate (Hz)", f"{monitor.received_hz(now):.2f}"))
+            values.append((f"{topic} sender rate from stamps (Hz)", f"{monitor.sender_hz():.2f}"))
+            values.append((f"{topic} missing (recent window)", str(monitor.missing())))
+            values.append((f"{topic} lost (DDS)", str(monitor.lost_reported)))
+        outputs = [t for t in self._outputs if now - t <= 2.0]
+        rate = (len(outputs) - 1) / max(outputs[-1] - outputs[0], 1e-9) if len(outputs) > 1 else 0.0
+        values.append(("output rate (Hz)", f"{rate:.2f}"))
+        for stage in (*STAGES, *sorted(set(self._stage_ms) - set(STAGES))):
+            samples = self._stage_ms.get(stage)
+            if samples:
+                values.append((f"{stage} time (ms)", f"{sum(samples) / len(samples):.2f}"))
+        if self._latency_s:
+            values.append(("latency from stamp (s)", f"{sum(self._latency_s) / len(self._latency_s):.3f}"))
+        values.append(("frames processed", str(self.processed)))
+        values.append(("dropped frames", str(self.dropped)))
+        values.append(("unmatched input messages", str(self.unmatched)))
+        values.append(("last error", self.last_error or "none"))
+        return values
+
+    def _level(self, now: float) -> tuple[bytes, str]:
+        if self.last_error and now - self._last_error_at <= 5.0:
+            return DiagnosticStatus.WARN, f"frames skipped: {self.last_error}"
+        lossy = [t for t, m in self.inputs.items() if m.missing()]
+        if lossy:
+            return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}"
+        return DiagnosticStatus.OK, "ok"

@@ -1,0 +1,21 @@
+"""The rclpy message classes, as the `MessageTypes` record that `stereo_depth.messages` builds with."""
+
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOfInterest
+from std_msgs.msg import Header
+from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.messages import MessageTypes
+
+RCLPY_TYPES = MessageTypes(
+    Header=Header,
+    Time=Time,
+    Image=Image,
+    CameraInfo=CameraInfo,
+    RegionOfInterest=RegionOfInterest,
+    DisparityImage=DisparityImage,
+    PointCloud2=PointCloud2,
+    PointField=PointField,
+)

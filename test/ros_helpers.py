@@ -1,0 +1,171 @@
+"""Node tests over real DDS: nodes in their own processes, a test node spinning in a thread.
+
+Every wait has a generous deadline (this runs on 2-core machines) and nothing asserts a duration.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from stereo_depth.messages import stamp_to_ns
+
+TIMEOUT_S = 20.0
+
+
+def wait_until(condition: Callable[[], Any], what: str, timeout: float = TIMEOUT_S) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.02)
+    msg = f"timed out after {timeout} s waiting for {what}"
+    raise TimeoutError(msg)
+
+
+class NodeProcess:
+    """One node as `python -m stereo_depth.nodes.<module> --ros-args ...`, output kept in a file."""
+
+    def __init__(
+        self, module: str, namespace: str, env: dict[str, str], log_dir: Path, args: Iterable[str] = ()
+    ) -> None:
+        self.name = module
+        self.namespace = namespace
+        self.log = log_dir / f"{namespace.strip('/').replace('/', '_')}_{module}.log"
+        with self.log.open("wb") as out:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", f"stereo_depth.nodes.{module}", "--ros-args", "-r", f"__ns:={namespace}", *args],
+                env=env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+            )
+
+    @property
+    def fqn(self) -> str:
+        return f"{self.namespace.rstrip('/')}/{self.name}"
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace")
+
+    def stop(self, sig: signal.Signals = signal.SIGINT) -> tuple[int, str]:
+        """Send `sig`, wait for the exit; returns (exit code, everything it printed)."""
+        if self.process.poll() is None:
+            self.process.send_signal(sig)
+            try:
+                self.process.wait(timeout=TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        return self.process.returncode, self.output()
+
+
+class Collector:
+    """Keeps every message of one topic; `wait_stamp` finds the one for a given input stamp."""
+
+    def __init__(self, harness: RosHarness, msg_type: Any, topic: str) -> None:
+        self.messages: list[Any] = []
+        self._lock = threading.Lock()
+        self.subscription = harness.node.create_subscription(msg_type, topic, self._store, reliable_qos(5))
+
+    def _store(self, msg: Any) -> None:
+        with self._lock:
+            self.messages.append(msg)
+
+    def stamps(self) -> list[int]:
+        with self._lock:
+            return [stamp_to_ns(m.header.stamp) for m in self.messages]
+
+    def wait_stamp(self, stamp_ns: int, timeout: float = TIMEOUT_S) -> Any:
+        def find() -> Any:
+            with self._lock:
+                return next((m for m in self.messages if stamp_to_ns(m.header.stamp) == stamp_ns), None)
+
+        return wait_until(find, f"{self.subscription.topic_name} with stamp {stamp_ns}", timeout)
+
+    def wait_any(self, timeout: float = TIMEOUT_S) -> Any:
+        start = len(self.messages)
+        return wait_until(lambda: self.messages[start:] and self.messages[-1], self.subscription.topic_name, timeout)
+
+
+def reliable_qos(depth: int) -> QoSProfile:
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class RosHarness:
+    """rclpy in the test process: one node, spun by a background thread."""
+
+    def __init__(self) -> None:
+        rclpy.init()
+        self.node = rclpy.create_node("stereo_depth_test")
+        self._executor = SingleThreadedExecutor()
+        self._executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._executor.spin, daemon=True)
+        self._thread.start()
+        self._clients: dict[str, AsyncParameterClient] = {}
+
+    def collector(self, msg_type: Any, topic: str) -> Collector:
+        return Collector(self, msg_type, topic)
+
+    def publisher(self, msg_type: Any, topic: str, reliability: ReliabilityPolicy = ReliabilityPolicy.RELIABLE) -> Any:
+        return self.node.create_publisher(msg_type, topic, QoSProfile(depth=5, reliability=reliability))
+
+    def wait_for_nodes(self, processes: Iterable[NodeProcess]) -> None:
+        for process in processes:
+            wait_until(
+                lambda p=process: (p.name, p.namespace) in self.node.get_node_names_and_namespaces()
+                or p.process.poll() is not None,
+                f"node {process.fqn}",
+            )
+            assert process.process.poll() is None, f"{process.fqn} exited:\n{process.output()}"
+
+    def set_parameters(self, node_fqn: str, **values: Any) -> list[Any]:
+        """`ros2 param set`, one parameter per call as the CLI does; returns the SetParametersResults."""
+        client = self._parameter_client(node_fqn)
+        results = []
+        for name, value in values.items():
+            future = client.set_parameters([Parameter(name, value=value)])
+            wait_until(future.done, f"set {name}")
+            results.extend(future.result().results)
+        return results
+
+    def get_parameters(self, node_fqn: str, *names: str) -> dict[str, Any]:
+        future = self._parameter_client(node_fqn).get_parameters(list(names))
+        wait_until(future.done, "get parameters")
+        values = future.result().values
+        pairs = zip(names, values, strict=True)
+        return {n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value for n, v in pairs}
+
+    def _parameter_client(self, node_fqn: str) -> AsyncParameterClient:
+        if node_fqn not in self._clients:
+            client = AsyncParameterClient(self.node, node_fqn)
+            assert client.wait_for_services(timeout_sec=TIMEOUT_S), f"{node_fqn} offers no parameter services"
+            self._clients[node_fqn] = client
+        return self._clients[node_fqn]
+
+    def close(self) -> None:
+        self._executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def stop_all(processes: Iterable[NodeProcess], sig: signal.Signals = signal.SIGINT) -> dict[str, tuple[int, str]]:
+    """Signal all first, then wait: the nodes shut down in parallel."""
+    processes = list(processes)
+    for process in processes:
+        if process.process.poll() is None:
+            process.process.send_signal(sig)
+    return {p.fqn: p.stop(sig) for p in processes}

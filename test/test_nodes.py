@@ -1,0 +1,322 @@
+"""The nodes over real DDS, each in its own process, fed real scenes from this test process.
+
+One stereo_node (/live) and one split chain (/split: rectify_node x2 -> disparity_node ->
+point_cloud_node) run for the whole module; every input set gets a fresh, increasing stamp.
+"""
+
+from __future__ import annotations
+
+import itertools
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import ReliabilityPolicy
+from ros_helpers import NodeProcess, RosHarness, stop_all, wait_until
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.core.camera import CameraInfo as Calibration
+from stereo_depth.core.matching import valid_window
+from stereo_depth.core.params import make_params
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult
+from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.messages import (
+    array_to_image,
+    camera_info_to_msg,
+    cloud_to_arrays,
+    disparity_to_msg,
+    image_to_array,
+    image_to_pipeline,
+    make_header,
+    pack_rgb,
+)
+from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.scenes import load_scene
+
+from conftest import EUROC, SCENES
+
+FRAME = "camera_left_optical_frame"
+_stamps = itertools.count(1_700_000_000 * 10**9, 500_000_000)
+
+
+class StereoInput:
+    """Publishers for the four inputs of a stereo pair under one namespace."""
+
+    def __init__(self, ros: RosHarness, namespace: str) -> None:
+        self.publishers = [
+            ros.publisher(Image, f"{namespace}/left/image_raw"),
+            ros.publisher(CameraInfo, f"{namespace}/left/camera_info"),
+            ros.publisher(Image, f"{namespace}/right/image_raw"),
+            ros.publisher(CameraInfo, f"{namespace}/right/camera_info"),
+        ]
+
+    def wait_matched(self, images: int = 1, infos: int = 1) -> None:
+        for publisher, count in zip(self.publishers, (images, infos, images, infos), strict=True):
+            wait_until(lambda p=publisher, n=count: p.get_subscription_count() >= n, f"{publisher.topic_name} matched")
+
+    def publish(self, pair: Pair, stamp: int, right_stamp: int | None = None, left_encoding: str | None = None) -> None:
+        right_stamp = stamp if right_stamp is None else right_stamp
+        left_header = make_header(RCLPY_TYPES, stamp, FRAME)
+        right_header = make_header(RCLPY_TYPES, right_stamp, FRAME)
+        left = array_to_image(RCLPY_TYPES, left_header, pair.left)
+        if left_encoding is not None:
+            left.encoding = left_encoding
+        self.publishers[0].publish(left)
+        self.publishers[1].publish(camera_info_to_msg(RCLPY_TYPES, left_header, pair.left_info))
+        self.publishers[2].publish(array_to_image(RCLPY_TYPES, right_header, pair.right))
+        self.publishers[3].publish(camera_info_to_msg(RCLPY_TYPES, right_header, pair.right_info))
+
+
+class Pair:
+    def __init__(self, left: np.ndarray, right: np.ndarray, infos: tuple[Calibration, Calibration]) -> None:
+        self.left, self.right = left, right
+        self.left_info, self.right_info = infos
+
+    def offline(self, **overrides: Any) -> StereoResult:
+        """What StereoPipeline gives without ROS for the pixels the node decodes."""
+        pipeline = StereoPipeline(make_params("default", overrides))
+        camera = pipeline.camera_for(self.left_info, self.right_info)
+        header = make_header(RCLPY_TYPES, 0, FRAME)
+        decode = lambda a: image_to_pipeline(array_to_image(RCLPY_TYPES, header, a))  # noqa: E731
+        return pipeline.process(decode(self.left), decode(self.right), camera)
+
+
+@pytest.fixture(scope="module")
+def artl() -> Pair:
+    """Middlebury scene whose two cameras have different cx: the offset must be subtracted once."""
+    scene = load_scene(SCENES / "artl")
+    return Pair(scene.left, scene.right, scene.camera_infos(FRAME))
+
+
+@pytest.fixture(scope="module")
+def euroc() -> Pair:
+    """Raw, distorted EuRoC pair: only the nodes' rectification makes it matchable."""
+    name = sorted((EUROC / "left").glob("*.png"))[0].name
+    left = cv2.imread(str(EUROC / "left" / name), cv2.IMREAD_GRAYSCALE)
+    right = cv2.imread(str(EUROC / "right" / name), cv2.IMREAD_GRAYSCALE)
+    return Pair(left, right, stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", FRAME))
+
+
+@pytest.fixture(scope="module")
+def ros(ros_env: dict[str, str]) -> Iterator[RosHarness]:
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+@pytest.fixture(scope="module")
+def nodes(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[dict[str, NodeProcess]]:
+    logs = tmp_path_factory.mktemp("node_logs")
+    processes = {
+        "live": NodeProcess("stereo_node", "/live", ros_env, logs),
+        "rectify_left": NodeProcess("rectify_node", "/split/left", ros_env, logs, ["-r", "image:=image_raw"]),
+        "rectify_right": NodeProcess("rectify_node", "/split/right", ros_env, logs, ["-r", "image:=image_raw"]),
+        "disparity": NodeProcess("disparity_node", "/split", ros_env, logs),
+        "points": NodeProcess(
+            "point_cloud_node", "/split", ros_env, logs, ["-r", "left/image_rect_color:=left/image_rect"]
+        ),
+    }
+    ros.wait_for_nodes(processes.values())
+    yield processes
+    stop_all(processes.values())
+
+
+@pytest.fixture(scope="module")
+def live(ros: RosHarness, nodes: dict[str, NodeProcess]) -> dict[str, Any]:
+    """Inputs and collected outputs of /live/stereo_node, matched before anything is published."""
+    outputs = {
+        "disparity": ros.collector(DisparityImage, "/live/disparity"),
+        "depth": ros.collector(Image, "/live/depth"),
+        "points2": ros.collector(PointCloud2, "/live/points2"),
+        "diagnostics": ros.collector(DiagnosticArray, "/live/diagnostics"),
+    }
+    for collector in outputs.values():
+        wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
+    inputs = StereoInput(ros, "/live")
+    inputs.wait_matched()
+    return {"inputs": inputs, **outputs}
+
+
+def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: Pair) -> None:
+    stamp = next(_stamps)
+    live["inputs"].publish(artl, stamp)
+    disparity_msg = live["disparity"].wait_stamp(stamp)
+    depth_msg = live["depth"].wait_stamp(stamp)
+    cloud_msg = live["points2"].wait_stamp(stamp)
+
+    expected = artl.offline()
+    camera = expected.camera
+    params = make_params()
+    height, width = expected.disparity.shape
+    window = valid_window(width, height, params)
+    reference = disparity_to_msg(RCLPY_TYPES, disparity_msg.header, expected.disparity, camera, 0, 64, window)
+    assert camera.disparity_offset == -50.0  # cx_l 148, cx_r 198
+    assert disparity_msg.header.frame_id == FRAME
+    assert disparity_msg.image.encoding == "32FC1"
+    assert bytes(disparity_msg.image.data) == bytes(reference.image.data)  # bit for bit
+    assert (disparity_msg.f, disparity_msg.t) == (camera.fx, pytest.approx(0.160))
+    assert disparity_msg.min_disparity == 50.0  # 0 - (cx_l - cx_r), the offset subtracted once
+    assert disparity_msg.max_disparity == 50.0 + 63.0
+    assert disparity_msg.delta_d == 1.0 / 16.0
+    roi = disparity_msg.valid_window
+    assert (roi.x_offset, roi.y_offset, roi.width, roi.height) == window
+    assert 0 < roi.x_offset < width and 0 < roi.width < width
+
+    image = image_to_array(disparity_msg.image)
+    invalid = ~np.isfinite(expected.disparity)
+    assert invalid.any() and np.all(image[invalid] == disparity_msg.min_disparity - 1.0)
+    assert np.all(image[~invalid] >= disparity_msg.min_disparity)
+
+    assert depth_msg.encoding == "32FC1" and depth_msg.header.stamp == disparity_msg.header.stamp
+    np.testing.assert_array_equal(image_to_array(depth_msg), expected.depth)
+
+    assert (cloud_msg.height, cloud_msg.width) == (height, width)
+    assert [(f.name, f.offset, f.datatype, f.count) for f in cloud_msg.fields] == [
+        ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("rgb", 16, 7, 1)
+    ]
+    assert cloud_msg.point_step == 32 and cloud_msg.row_step == 32 * width and not cloud_msg.is_dense
+    assert cloud_msg.header.frame_id == FRAME
+    xyz, rgb = cloud_to_arrays(cloud_msg)
+    np.testing.assert_array_equal(xyz[:, :, 2], expected.depth)
+    valid = np.isfinite(xyz[:, :, 2])
+    assert valid.mean() > 0.5
+    v, u = np.nonzero(valid)
+    x, y, z = (xyz[valid][:, i].astype(np.float64) for i in range(3))
+    np.testing.assert_allclose(camera.fx * x / z + camera.cx_left, u, atol=1e-3)
+    np.testing.assert_allclose(camera.fy * y / z + camera.cy, v, atol=1e-3)
+    np.testing.assert_array_equal(rgb, pack_rgb(artl.left))  # identity rectification: scene colours
+
+
+def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: dict[str, Any], euroc: Pair) -> None:
+    split_disparity = ros.collector(DisparityImage, "/split/disparity")
+    split_points = ros.collector(PointCloud2, "/split/points2")
+    for collector in (split_disparity, split_points):
+        wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "split outputs matched")
+    split_inputs = StereoInput(ros, "/split")
+    split_inputs.wait_matched(infos=2)  # camera_info goes to rectify_node and disparity_node
+
+    stamp = next(_stamps)
+    split_inputs.publish(euroc, stamp)
+    live["inputs"].publish(euroc, stamp)
+    live_cloud, split_cloud = live["points2"].wait_stamp(stamp), split_points.wait_stamp(stamp)
+    live_disparity, chain_disparity = live["disparity"].wait_stamp(stamp), split_disparity.wait_stamp(stamp)
+
+    assert euroc.offline().camera.needs_rectification("left")
+    assert bytes(chain_disparity.image.data) == bytes(live_disparity.image.data)
+    assert chain_disparity.valid_window == live_disparity.valid_window
+    assert list(split_cloud.fields) == list(live_cloud.fields)
+    assert (split_cloud.height, split_cloud.width) == (live_cloud.height, live_cloud.width)
+    assert bytes(split_cloud.data) == bytes(live_cloud.data)
+    assert np.isfinite(cloud_to_arrays(live_cloud)[0][:, :, 2]).mean() > 0.3
+
+
+def test_approximate_sync_pairs_only_within_tolerance(ros: RosHarness, live: dict[str, Any], artl: Pair) -> None:
+    fqn = "/live/stereo_node"
+    results = ros.set_parameters(fqn, approximate_sync=True, approximate_sync_tolerance_seconds=0.01)
+    assert all(r.successful for r in results)
+    try:
+        sent: dict[int, bool] = {}
+        for offset_ms in (0, 4, 9, 15, 40, 300, 2):
+            stamp = next(_stamps)
+            live["inputs"].publish(artl, stamp, right_stamp=stamp + offset_ms * 1_000_000)
+            sent[stamp] = offset_ms <= 10
+            if sent[stamp]:
+                live["disparity"].wait_stamp(stamp)  # one set at a time: none is replaced while busy
+        received = set(live["disparity"].stamps())
+        assert {s for s in sent if s in received} == {s for s, paired in sent.items() if paired}
+    finally:
+        ros.set_parameters(fqn, approximate_sync=False)
+
+
+def test_runtime_parameter_change_changes_output_and_invalid_is_refused(
+    ros: RosHarness, live: dict[str, Any], artl: Pair
+) -> None:
+    fqn = "/live/stereo_node"
+    [ok] = ros.set_parameters(fqn, disparity_range=32)
+    assert ok.successful
+    try:
+        refused = ros.set_parameters(fqn, P1=1000.0, disparity_range=40, matcher="magic", correlation_window_size=4)
+        assert [r.successful for r in refused] == [False] * 4
+        assert "P2" in refused[0].reason and "matcher 'magic' is unknown" in refused[2].reason
+        assert ros.get_parameters(fqn, "P1", "disparity_range", "matcher") == {
+            "P1": 200.0, "disparity_range": 32, "matcher": "sgbm"
+        }
+        stamp = next(_stamps)
+        live["inputs"].publish(artl, stamp)
+        msg = live["disparity"].wait_stamp(stamp)
+        assert msg.max_disparity == 50.0 + 31.0
+        expected = artl.offline(disparity_range=32)
+        reference = disparity_to_msg(RCLPY_TYPES, msg.header, expected.disparity, expected.camera, 0, 32, (0, 0, 0, 0))
+        assert bytes(msg.image.data) == bytes(reference.image.data)
+
+        [alias] = ros.set_parameters(fqn, stereo_algorithm=0)  # stereo_image_proc's name for matcher
+        assert alias.successful and ros.get_parameters(fqn, "matcher") == {"matcher": "bm"}
+    finally:
+        ros.set_parameters(fqn, disparity_range=64, matcher="sgbm")
+
+
+def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: Pair) -> None:
+    bad = next(_stamps)
+    live["inputs"].publish(artl, bad, left_encoding="yuv422")
+
+    def reported() -> dict[str, str] | None:
+        for array in reversed(live["diagnostics"].messages):
+            values = {kv.key: kv.value for kv in array.status[0].values}
+            if "yuv422" in values.get("last error", ""):
+                return values
+        return None
+
+    values = wait_until(reported, "the bad frame in diagnostics")
+    assert "/live/left/image_raw" in values["last error"]  # names the topic
+    for key in ("/live/left/image_raw rate (Hz)", "output rate (Hz)", "match time (ms)", "rectify time (ms)",
+                "latency from stamp (s)", "dropped frames", "frames processed"):
+        assert key in values, key
+    good = next(_stamps)
+    live["inputs"].publish(artl, good)
+    live["disparity"].wait_stamp(good)
+    assert bad not in live["disparity"].stamps()
+
+
+def test_input_reliability_follows_the_publishers(ros: RosHarness, live: dict[str, Any]) -> None:
+    topic = "/live/right/image_raw"
+
+    def node_reliability() -> ReliabilityPolicy | None:
+        infos = [i for i in ros.node.get_subscriptions_info_by_topic(topic) if i.node_name == "stereo_node"]
+        return infos[0].qos_profile.reliability if infos else None
+
+    assert node_reliability() == ReliabilityPolicy.RELIABLE
+    best_effort = ros.publisher(Image, topic, ReliabilityPolicy.BEST_EFFORT)
+    wait_until(lambda: node_reliability() == ReliabilityPolicy.BEST_EFFORT, "a best-effort subscription")
+    wait_until(lambda: best_effort.get_subscription_count() >= 1, "the best-effort publisher matched")
+    ros.node.destroy_publisher(best_effort)
+    wait_until(lambda: node_reliability() == ReliabilityPolicy.RELIABLE, "back to reliable")
+    live["inputs"].wait_matched()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_ends_every_node_cleanly(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, sig: signal.Signals
+) -> None:
+    namespace = f"/{sig.name.lower()}"
+    processes = [
+        NodeProcess(module, namespace, ros_env, tmp_path)
+        for module in ("stereo_node", "disparity_node", "point_cloud_node", "rectify_node")
+    ]
+    ros.wait_for_nodes(processes)
+    for fqn, (code, output) in stop_all(processes, sig).items():
+        assert code == 0, f"{fqn}: exit code {code}\n{output}"
+        assert "Traceback" not in output and "terminate called" not in output, f"{fqn}:\n{output}"
+
+
+def test_module_nodes_survived_the_tests(nodes: dict[str, NodeProcess]) -> None:
+    for process in nodes.values():
+        assert process.process.poll() is None, f"{process.fqn} died:\n{process.output()}"
+        assert "Traceback" not in process.output(), process.output()

@@ -1,0 +1,136 @@
+"""The nodes' ROS glue without other processes: parameters, QoS rule, rate monitor, worker, YAML."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import rclpy
+import yaml
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
+from ros_helpers import wait_until
+
+from stereo_depth.core.params import PROFILES, StereoParams
+from stereo_depth.ros.diagnostics import RateMonitor
+from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
+from stereo_depth.ros.qos import choose_reliability
+from stereo_depth.ros.stereo_io import LatestWorker
+
+CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
+RELIABLE, BEST_EFFORT = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
+
+
+@pytest.fixture
+def context(ros_env: dict[str, str]) -> Iterator[rclpy.Context]:
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def node_with(context: rclpy.Context, **overrides: object) -> tuple[Node, NodeParameters, list[Settings]]:
+    node = Node(
+        "params_under_test",
+        context=context,
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()],
+        start_parameter_services=False,
+    )
+    applied: list[Settings] = []
+    return node, NodeParameters(node, ("queue_size",), with_stereo=True, on_change=applied.append), applied
+
+
+def test_profile_gives_the_defaults_and_explicit_values_win(context: rclpy.Context) -> None:
+    node, parameters, _ = node_with(context, profile="stereo_image_proc", correlation_window_size=21)
+    stereo = parameters.settings.stereo
+    assert stereo is not None
+    assert stereo.matcher == "bm" and stereo.uniqueness_ratio == PROFILES["stereo_image_proc"]["uniqueness_ratio"]
+    assert stereo.correlation_window_size == 21
+    assert node.get_parameter("correlation_window_size").value == 21
+    node.destroy_node()
+
+
+def test_stereo_image_proc_alias_sets_matcher_at_start_up(context: rclpy.Context) -> None:
+    node, parameters, _ = node_with(context, stereo_algorithm=0)
+    assert parameters.settings.stereo is not None and parameters.settings.stereo.matcher == "bm"
+    node.destroy_node()
+
+
+def test_runtime_change_is_validated_against_the_other_values(context: rclpy.Context) -> None:
+    node, _, applied = node_with(context)
+    [refused] = node.set_parameters([Parameter("P1", value=5000.0)])  # P2 is 800
+    assert not refused.successful and "P2 (800.0) must be greater than P1 (5000.0)" in refused.reason
+    assert node.get_parameter("P1").value == 200.0 and not applied
+    [step] = node.set_parameters([Parameter("disparity_range", value=40)])
+    assert not step.successful  # the descriptor's step of 16
+    [ok] = node.set_parameters([Parameter("stereo_algorithm", value=0)])
+    assert ok.successful and node.get_parameter("matcher").value == "bm"
+    assert applied[-1].stereo is not None and applied[-1].stereo.matcher == "bm"
+    [read_only] = node.set_parameters([Parameter("profile", value="fast")])
+    assert not read_only.successful
+    node.destroy_node()
+
+
+def test_unknown_profile_refuses_to_start(context: rclpy.Context) -> None:
+    with pytest.raises(Exception, match="profile 'nope' is unknown"):
+        node_with(context, profile="nope")
+
+
+def test_reliability_follows_the_publishers_like_rosbag2() -> None:
+    assert choose_reliability("auto", [RELIABLE, RELIABLE], BEST_EFFORT) == RELIABLE
+    assert choose_reliability("auto", [RELIABLE, BEST_EFFORT], RELIABLE) == BEST_EFFORT
+    assert choose_reliability("auto", [], BEST_EFFORT) == BEST_EFFORT  # nobody publishes: keep
+    assert choose_reliability("reliable", [BEST_EFFORT], BEST_EFFORT) == RELIABLE
+    assert choose_reliability("best_effort", [RELIABLE], RELIABLE) == BEST_EFFORT
+
+
+def test_system_default_qos_means_reliable_unless_forced_otherwise() -> None:
+    assert NodeOptions(use_system_default_qos=True).reliability == "reliable"
+    assert NodeOptions(use_system_default_qos=True, input_reliability="best_effort").reliability == "best_effort"
+    assert NodeOptions().tolerance_ns > 10**18  # 0 s = no limit, as stereo_image_proc
+
+
+def test_rate_monitor_sees_half_the_frames_missing() -> None:
+    monitor = RateMonitor()
+    period = 33_000_000
+    arrived = [i for i in range(40) if i % 2 == 0 or i % 7 == 0]  # about half, a few consecutive pairs
+    for i in arrived:
+        monitor.add(i * period, i * 0.033)
+    assert monitor.sender_hz() == pytest.approx(1e9 / period)
+    assert monitor.missing() == (arrived[-1] - arrived[0] + 1) - len(arrived)
+
+
+def test_latest_worker_keeps_only_the_newest_waiting_job() -> None:
+    started, release = threading.Event(), threading.Event()
+    done: list[int] = []
+    replaced: list[int] = []
+
+    def run(job: int) -> None:
+        started.set()
+        release.wait(5)
+        done.append(job)
+
+    worker = LatestWorker(run, lambda: replaced.append(1))
+    worker.submit(1)
+    started.wait(5)
+    for job in (2, 3, 4):
+        worker.submit(job)
+    release.set()
+    wait_until(lambda: len(done) == 2, "the newest job")
+    worker.stop()
+    assert done == [1, 4] and len(replaced) == 2
+
+
+def test_config_yaml_lists_every_parameter_with_its_default() -> None:
+    assert CONFIG.read_text() == render_config_yaml(), (
+        "config/stereo_depth.yaml is stale: python -m stereo_depth.ros.parameters > config/stereo_depth.yaml"
+    )
+    values = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
+    expected = {"profile": "default"}
+    expected |= {f.name: getattr(StereoParams(), f.name) for f in dataclasses.fields(StereoParams)}
+    expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
+    assert values == expected
