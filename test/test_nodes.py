@@ -6,6 +6,7 @@ point_cloud_node) run for the whole module; every input set gets a fresh, increa
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import signal
 from collections.abc import Iterator
@@ -15,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import ReliabilityPolicy
 from ros_helpers import NodeProcess, RosHarness, stop_all, wait_until
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -30,6 +31,7 @@ from stereo_depth.messages import (
     array_to_image,
     camera_info_to_msg,
     cloud_to_arrays,
+    disparity_from_msg,
     disparity_to_msg,
     image_to_array,
     image_to_pipeline,
@@ -320,3 +322,54 @@ def test_module_nodes_survived_the_tests(nodes: dict[str, NodeProcess]) -> None:
     for process in nodes.values():
         assert process.process.poll() is None, f"{process.fqn} died:\n{process.output()}"
         assert "Traceback" not in process.output(), process.output()
+
+
+def calibration_status(diagnostics: Any, after_stamp: int) -> Any:
+    """The newest calibration status about a frame stamped at or after `after_stamp`."""
+    for array in reversed(diagnostics.messages):
+        for status in array.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if status.name.endswith("calibration") and int(values["frame stamp (ns)"]) >= after_stamp:
+                return status, values
+    return None
+
+
+def test_census_core_publishes_confidence_and_the_calibration_check_reports(
+    ros: RosHarness, live: dict[str, Any], euroc: Pair
+) -> None:
+    fqn = "/live/stereo_node"
+    confidence = ros.collector(Image, "/live/confidence")
+    wait_until(lambda: confidence.subscription.get_publisher_count() >= 1, "confidence matched")
+    quality = make_params("quality")
+    changes = {"matcher": "census_sgm", "correlation_window_size": 1, "P1": quality.P1, "P2": quality.P2,
+               "uniqueness_ratio": quality.uniqueness_ratio, "calibration_check_every_n_frames": 1}
+    assert all(r.successful for r in ros.set_parameters(fqn, **changes))
+    try:
+        stamp = next(_stamps)
+        live["inputs"].publish(euroc, stamp)
+        disparity = disparity_from_msg(live["disparity"].wait_stamp(stamp, timeout=120.0))  # numba may compile
+        conf = image_to_array(confidence.wait_stamp(stamp))
+        assert conf.shape == disparity.shape and conf.dtype == np.float32
+        assert conf.min() >= 0.0 and conf.max() <= 1.0
+        assert np.all(conf[~np.isfinite(disparity)] == 0.0) and (conf > 0.5).mean() > 0.3
+
+        status, values = wait_until(lambda: calibration_status(live["diagnostics"], stamp), "calibration check")
+        assert status.level == DiagnosticStatus.OK, status.message  # the true EuRoC calibration
+        assert float(values["median vertical offset (px)"]) < 0.3  # measured 0.14
+
+        # the rig "knocked": the right camera's rectification rotated 0.5 degrees about the baseline
+        knocked = Pair(euroc.left, euroc.right, (euroc.left_info, rotated_about_baseline(euroc.right_info, 0.5)))
+        stamp = next(_stamps)
+        live["inputs"].publish(knocked, stamp)
+        status, values = wait_until(lambda: calibration_status(live["diagnostics"], stamp), "calibration check")
+        assert status.level in (DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+        assert "recalibrate" in status.message
+    finally:
+        restore = {name: getattr(make_params(), name) for name in changes if name != "calibration_check_every_n_frames"}
+        ros.set_parameters(fqn, **restore, calibration_check_every_n_frames=30)
+
+
+def rotated_about_baseline(info: Calibration, degrees: float) -> Calibration:
+    angle = np.deg2rad(degrees)
+    rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    return dataclasses.replace(info, r=rotation @ info.r)

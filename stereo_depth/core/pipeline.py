@@ -28,6 +28,7 @@ STAGES = ("rectify", "match", "filter", "depth", "points")
 class StereoResult:
     camera: StereoCamera | None  # None: disparity only (no calibration known)
     left_rect: np.ndarray  # uint8 grey, rectified
+    right_rect: np.ndarray  # uint8 grey, rectified (the calibration check compares the two)
     left_rect_color: np.ndarray | None  # uint8 BGR, rectified, when the input had colour
     disparity: np.ndarray  # float32, d = x_left - x_right (not offset-adjusted), NaN invalid
     confidence: np.ndarray | None
@@ -146,7 +147,7 @@ class StereoPipeline:
         t5 = time.perf_counter()
         for name, start, end in zip(STAGES, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
             timings[name] = (end - start) * 1000.0
-        return StereoResult(camera, grey_l, color, disparity, match.confidence, depth, points, timings)
+        return StereoResult(camera, grey_l, grey_r, color, disparity, match.confidence, depth, points, timings)
 
     def _rays_for(self, camera: StereoCamera) -> Rays:
         key = camera.key()

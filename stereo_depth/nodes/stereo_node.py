@@ -7,14 +7,17 @@ defaults.
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
+from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
-from stereo_depth.messages import array_to_image
+from stereo_depth.messages import array_to_image, stamp_to_ns
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, disparity_message, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -34,6 +37,9 @@ class StereoNode(StereoIONode):
         "publish_disparity",
         "publish_depth",
         "publish_points",
+        "publish_confidence",
+        "calibration_check",
+        "calibration_check_every_n_frames",
     )
     WITH_STEREO = True
 
@@ -44,6 +50,12 @@ class StereoNode(StereoIONode):
         self._disparity = self.output(DisparityImage, "disparity")
         self._depth = self.output(Image, "depth")
         self._points = self.output(PointCloud2, "points2")
+        self._confidence = self.output(Image, "confidence")
+        # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
+        self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
+        self._check_idle = threading.Event()
+        self._check_idle.set()
+        self._frames = 0
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert self.pipeline is not None and settings.stereo is not None
@@ -60,7 +72,29 @@ class StereoNode(StereoIONode):
         start = time.perf_counter()
         self._publish(left_msg.header, result, settings, options)
         timed(stages, "publish", start)
+        self._maybe_check_calibration(left_msg.header, result, options)
         return {**result.timings_ms, **stages}
+
+    def _maybe_check_calibration(self, header: Any, result: StereoResult, options: NodeOptions) -> None:
+        self._frames += 1
+        if not options.calibration_check or self._frames % options.calibration_check_every_n_frames:
+            return
+        if not self._check_idle.is_set():
+            return  # the previous check is still running: skip this one rather than queue
+        self._check_idle.clear()
+        stamp_ns = stamp_to_ns(header.stamp)
+        # copies: the check outlives this frame, whose buffers the next frame may reuse
+        self._checker.submit(self._check_calibration, stamp_ns, result.left_rect.copy(), result.right_rect.copy())
+
+    def _check_calibration(self, stamp_ns: int, left_rect: Any, right_rect: Any) -> None:
+        try:
+            self.diagnostics.calibration(stamp_ns, check_rectified_pair(left_rect, right_rect))
+        finally:
+            self._check_idle.set()
+
+    def destroy_node(self) -> None:
+        self._checker.shutdown(wait=True, cancel_futures=True)
+        super().destroy_node()
 
     def _publish(self, header: Any, result: StereoResult, settings: Settings, options: NodeOptions) -> None:
         assert result.camera is not None and settings.stereo is not None
@@ -72,6 +106,8 @@ class StereoNode(StereoIONode):
             self._disparity.publish(disparity_message(header, result.disparity, result.camera, settings.stereo))
         if result.depth is not None and self.wanted(self._depth, options.publish_depth):
             self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
+        if result.confidence is not None and self.wanted(self._confidence, options.publish_confidence):
+            self._confidence.publish(array_to_image(RCLPY_TYPES, header, result.confidence, "32FC1"))
         if result.points is not None:
             color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
             self._points.publish(cloud_message(header, result.points, color, options))

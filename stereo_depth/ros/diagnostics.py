@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from stereo_depth.core.calibration_check import CalibrationCheck
 from stereo_depth.core.pipeline import STAGES
 
 WINDOW = 50  # messages per input used to estimate rates
@@ -73,6 +74,7 @@ class NodeDiagnostics:
         self.processed = 0
         self.last_error = ""
         self._last_error_at = 0.0
+        self._calibration: tuple[int, CalibrationCheck] | None = None  # (stamp checked, result)
 
     def input_received(self, topic: str, stamp_ns: int) -> None:
         with self._lock:
@@ -104,12 +106,17 @@ class NodeDiagnostics:
             self.last_error = text
             self._last_error_at = time.monotonic()
 
+    def calibration(self, stamp_ns: int, check: CalibrationCheck) -> None:
+        with self._lock:
+            self._calibration = (stamp_ns, check)
+
     def report(self, header: object) -> DiagnosticArray:
         """Rates over the last seconds; times are means over the last RECENT_FRAMES frames."""
         now = time.monotonic()
         with self._lock:
             values = self._values(now)
             level, message = self._level(now)
+            calibration = self._calibration
         status = DiagnosticStatus(
             level=level,
             name=f"{self._name}: stereo processing",
@@ -117,7 +124,24 @@ class NodeDiagnostics:
             hardware_id=self._name,
             values=[KeyValue(key=k, value=v) for k, v in values],
         )
-        return DiagnosticArray(header=header, status=[status])
+        statuses = [status]
+        if calibration is not None:
+            statuses.append(self._calibration_status(*calibration))
+        return DiagnosticArray(header=header, status=statuses)
+
+    def _calibration_status(self, stamp_ns: int, check: CalibrationCheck) -> DiagnosticStatus:
+        values = [
+            ("median vertical offset (px)", f"{check.median_dy:.3f}"),
+            ("inlier matches", str(check.inliers)),
+            ("frame stamp (ns)", str(stamp_ns)),
+        ]
+        return DiagnosticStatus(
+            level=bytes([int(check.level)]),
+            name=f"{self._name}: calibration",
+            message=check.message,
+            hardware_id=self._name,
+            values=[KeyValue(key=k, value=v) for k, v in values],
+        )
 
     def _values(self, now: float) -> list[tuple[str, str]]:
         values = []

@@ -65,6 +65,16 @@ class NodeOptions:
     publish_disparity: bool = field(default=True, metadata=_spec("Publish disparity (stereo_msgs/DisparityImage)"))
     publish_depth: bool = field(default=True, metadata=_spec("Publish depth (32FC1, metres, NaN invalid)"))
     publish_points: bool = field(default=True, metadata=_spec("Publish points2 (sensor_msgs/PointCloud2)"))
+    publish_confidence: bool = field(
+        default=True, metadata=_spec("Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
+    )
+    calibration_check: bool = field(
+        default=True,
+        metadata=_spec("Check now and then that rectified rows still agree (report in diagnostics)"),
+    )
+    calibration_check_every_n_frames: int = field(
+        default=30, metadata=_spec("Run the calibration check on one frame in this many", 1, 100000, 1)
+    )
     max_image_pixels: int = field(
         default=DEFAULT_MAX_PIXELS,
         metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
