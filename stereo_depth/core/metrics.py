@@ -81,7 +81,7 @@ def error_map(disparity: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = N
     return picture
 
 
-def _label(image: np.ndarray, text: str) -> np.ndarray:
+def label(image: np.ndarray, text: str) -> np.ndarray:
     out = image.copy()
     cv2.rectangle(out, (0, 0), (min(out.shape[1], 12 + 9 * len(text)), 22), (0, 0, 0), -1)
     cv2.putText(out, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
@@ -95,9 +95,9 @@ def comparison_picture(
     top = float(np.nanmax(gt)) if np.isfinite(gt).any() else None
     left_bgr = left if left.ndim == 3 else cv2.cvtColor(left, cv2.COLOR_GRAY2BGR)
     panels = [
-        _label(left_bgr, title),
-        _label(colorize_disparity(gt, top), "ground truth"),
-        _label(colorize_disparity(disparity, top), "ours"),
-        _label(error_map(disparity, gt, mask), "error: green<=1 yellow<=2 red>2 blue=missing"),
+        label(left_bgr, title),
+        label(colorize_disparity(gt, top), "ground truth"),
+        label(colorize_disparity(disparity, top), "ours"),
+        label(error_map(disparity, gt, mask), "error: green<=1 yellow<=2 red>2 blue=missing"),
     ]
     return np.hstack(panels)
