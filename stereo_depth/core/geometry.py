@@ -43,7 +43,7 @@ def disparity_to_depth(
     contents), so it must not be subtracted again; the arithmetic is otherwise the same, bit for bit.
     """
     offset = 0.0 if offset_adjusted else camera.disparity_offset
-    d = np.subtract(disparity, np.float32(offset), out=out, dtype=np.float32)
+    d: np.ndarray = np.subtract(disparity, np.float32(offset), out=out, dtype=np.float32)
     d[~(d > 0)] = np.nan
     np.divide(np.float32(camera.fx * camera.baseline), d, out=d)
     return d
