@@ -1,0 +1,207 @@
+"""A recorded stereo bag through the live node's pipeline, into a bag of results.
+
+The same `StereoPipeline`, the same message conversions and the same synchronizer as `stereo_node`,
+so a bag processed here and the same bag replayed into the node give bit-identical disparity.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from stereo_depth.bag.export import disparity_picture, write_ply
+from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy
+from stereo_depth.bag.types import rosbags_types
+from stereo_depth.bag.writer import BagWriter, check_output
+from stereo_depth.core.matching import valid_window
+from stereo_depth.core.params import StereoParams
+from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.errors import StereoDepthError
+from stereo_depth.messages import (
+    MessageTypes,
+    array_to_image,
+    camera_info_from_msg,
+    disparity_to_msg,
+    image_to_pipeline,
+    points_to_cloud,
+)
+
+
+@dataclass
+class ProcessOptions:
+    namespace: str | None = None
+    sync: SyncPolicy = field(default_factory=SyncPolicy)
+    storage: str = "mcap"
+    overwrite: bool = False
+    png_dir: Path | None = None
+    ply_dir: Path | None = None  # one PLY per frame
+    ply_frames: int | None = None  # write PLYs for the first N frames only (None: all)
+
+
+@dataclass
+class ProcessSummary:
+    left_images: int = 0
+    right_images: int = 0
+    frames_out: int = 0
+    unmatched: int = 0
+    skipped: Counter[str] = field(default_factory=Counter)
+    seconds: float = 0.0
+    stage_ms: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    topics: list[str] = field(default_factory=list)
+    pictures: list[Path] = field(default_factory=list)
+    clouds: list[Path] = field(default_factory=list)
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames_out / self.seconds if self.seconds > 0 else 0.0
+
+    def mean_stage_ms(self) -> dict[str, float]:
+        return {k: v / max(1, self.frames_out) for k, v in self.stage_ms.items()}
+
+    def lines(self) -> list[str]:
+        out = [
+            f"frames in: {self.left_images} left / {self.right_images} right images; "
+            f"frames out: {self.frames_out}; unmatched: {self.unmatched}; skipped: {sum(self.skipped.values())}; "
+            f"{self.frames_per_second:.1f} frames/s"
+        ]
+        if self.unmatched:
+            out.append(
+                f"  unmatched: {self.unmatched} messages found no partner with the same stamp "
+                "(try --approximate-sync, or a larger --queue-size)"
+            )
+        out.extend(f"  skipped {n}x: {reason}" for reason, n in self.skipped.most_common())
+        timings = ", ".join(f"{k} {v:.1f}" for k, v in self.mean_stage_ms().items())
+        out.append(f"mean per-stage time, ms: {timings}")
+        return out
+
+
+def frame_outputs(types: MessageTypes, header: Any, result: StereoResult, params: StereoParams) -> dict[str, Any]:
+    """The messages stereo_node publishes for one frame (with its default options), by output name."""
+    assert result.camera is not None and result.depth is not None and result.points is not None
+    height, width = result.disparity.shape
+    color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+    outputs = {
+        "disparity": disparity_to_msg(
+            types,
+            header,
+            result.disparity,
+            result.camera,
+            params.min_disparity,
+            params.disparity_range,
+            valid_window(width, height, params),
+            delta_d=params.downsample / 16.0,
+        ),
+        "depth": array_to_image(types, header, result.depth, "32FC1"),
+        "points2": points_to_cloud(types, header, result.points, color),
+        "left/image_rect": array_to_image(types, header, result.left_rect),
+    }
+    if result.left_rect_color is not None:
+        outputs["left/image_rect_color"] = array_to_image(types, header, result.left_rect_color)
+    return outputs
+
+
+def run_frame(pipeline: StereoPipeline, frame: StereoMessages, rectified: bool) -> StereoResult:
+    camera = pipeline.camera_for(camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info))
+    left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
+    return pipeline.process(left, right, camera, rectified=rectified)
+
+
+class Progress:
+    """One `\r` line on stderr with frames/s, only when stderr is a terminal."""
+
+    def __init__(self, total: int) -> None:
+        self.total = max(total, 1)
+        self.enabled = sys.stderr.isatty()
+        self.start = time.perf_counter()
+
+    def update(self, done: int) -> None:
+        if not self.enabled:
+            return
+        rate = done / max(time.perf_counter() - self.start, 1e-9)
+        filled = int(30 * min(done, self.total) / self.total)
+        sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} frames  {rate:5.1f} frames/s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def _export(
+    index: int,
+    frame: StereoMessages,
+    result: StereoResult,
+    params: StereoParams,
+    options: ProcessOptions,
+    summary: ProcessSummary,
+) -> None:
+    stem = f"{index:04d}_{frame.stamp_ns}"
+    left = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+    if options.png_dir is not None:
+        path = options.png_dir / f"{stem}.png"
+        cv2.imwrite(str(path), disparity_picture(left, result.disparity, params.min_disparity + params.disparity_range))
+        summary.pictures.append(path)
+    wants_ply = options.ply_frames is None or index < options.ply_frames
+    if options.ply_dir is not None and wants_ply and result.points is not None:
+        path = options.ply_dir / f"{stem}.ply"
+        write_ply(path, result.points, left)
+        summary.clouds.append(path)
+
+
+FrameCallback = Callable[[int, StereoMessages, StereoResult], None]
+
+
+def process_bag(
+    in_bag: Path,
+    out_bag: Path,
+    params: StereoParams,
+    options: ProcessOptions | None = None,
+    on_frame: FrameCallback | None = None,
+) -> ProcessSummary:
+    """Process every matched frame of `in_bag` into `out_bag`; nothing appears at `out_bag` on failure."""
+    options = options or ProcessOptions()
+    check_output(out_bag, options.overwrite)
+    for folder in (options.png_dir, options.ply_dir):
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+    types = rosbags_types()
+    pipeline = StereoPipeline(params)
+    summary = ProcessSummary()
+    start = time.perf_counter()
+    with (
+        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync) as reader,
+        BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite) as writer,
+    ):
+        topics = reader.topics
+        progress = Progress(reader.count(topics.names[0]))
+        for frame in reader.frames():
+            try:
+                result = run_frame(pipeline, frame, topics.rectified)
+            except StereoDepthError as exc:
+                summary.skipped[str(exc)] += 1
+                continue
+            header = frame.left_image.header
+            for name, message in frame_outputs(types, header, result, params).items():
+                writer.write(topics.output(name), message, frame.stamp_ns)
+                if topics.output(name) not in summary.topics:
+                    summary.topics.append(topics.output(name))
+            for stage, ms in result.timings_ms.items():
+                summary.stage_ms[stage] += ms
+            _export(summary.frames_out, frame, result, params, options, summary)
+            if on_frame is not None:
+                on_frame(summary.frames_out, frame, result)
+            summary.frames_out += 1
+            progress.update(summary.frames_out)
+        progress.close()
+        stats = reader.stats
+        summary.left_images, summary.right_images = stats.left_images, stats.right_images
+        summary.unmatched = (stats.sync.dropped if stats.sync else 0) + stats.unmatched_at_end
+    summary.seconds = time.perf_counter() - start
+    return summary

@@ -1,0 +1,210 @@
+"""Stereo frames out of a rosbag2 (MCAP or sqlite3), paired with the live node's sync rules.
+
+The stereo topics are found by their suffixes (`left/image_raw`, `left/camera_info`, `right/image_raw`,
+`right/camera_info`, or the `image_rect` variants) so that a bag recorded under any namespace works
+without naming four topics; a namespace is only needed when the bag holds several stereo sets.
+Messages go through `sync.Synchronizer` in the order they were recorded, as they would arrive live.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Literal
+
+from rosbags.rosbag2 import Reader, ReaderError
+
+from stereo_depth.bag.types import deserialize
+from stereo_depth.errors import BagError
+from stereo_depth.messages import stamp_to_ns
+from stereo_depth.sync import SyncCounters, Synchronizer
+
+ROLES = ("left_image", "left_info", "right_image", "right_info")
+SUFFIXES = {
+    "image_raw": ("left/image_raw", "left/camera_info", "right/image_raw", "right/camera_info"),
+    "image_rect": ("left/image_rect", "left/camera_info", "right/image_rect", "right/camera_info"),
+}
+NO_LIMIT_NS = 1 << 62
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+@dataclass(frozen=True)
+class StereoTopics:
+    namespace: str  # "" or "/ns", without a trailing slash
+    names: tuple[str, str, str, str]  # in ROLES order
+    rectified: bool
+
+    def output(self, name: str) -> str:
+        """An output topic under the same namespace as the input (e.g. /stereo/disparity)."""
+        return f"{self.namespace}/{name}"
+
+
+@dataclass(frozen=True)
+class SyncPolicy:
+    """The live node's sync parameters and defaults (queue_size, approximate_sync and its tolerance)."""
+
+    approximate: bool = False
+    queue_size: int = 5
+    tolerance_ns: int = NO_LIMIT_NS
+
+    @classmethod
+    def from_node_parameters(cls, approximate: bool, queue_size: int, tolerance_s: float) -> SyncPolicy:
+        """As the node reads approximate_sync_tolerance_seconds: 0 means no limit (stereo_image_proc)."""
+        return cls(approximate, queue_size, round(tolerance_s * 1e9) if tolerance_s > 0 else NO_LIMIT_NS)
+
+
+@dataclass
+class StereoMessages:
+    """One matched set of the four inputs, as deserialized messages."""
+
+    stamp_ns: int
+    left_image: Any
+    left_info: Any
+    right_image: Any
+    right_info: Any
+
+
+def _normalise(namespace: str) -> str:
+    return "/" + namespace.strip("/") if namespace.strip("/") else ""
+
+
+def _sets(topics: dict[str, str]) -> list[StereoTopics]:
+    """Every (namespace, raw|rect) for which the bag has all four topics with the right types."""
+    found = []
+    for variant, suffixes in SUFFIXES.items():
+        for name in topics:
+            if not name.endswith("/" + suffixes[0]):
+                continue
+            namespace = name[: -len(suffixes[0]) - 1]
+            names = tuple(f"{namespace}/{suffix}" for suffix in suffixes)
+            wanted = (IMAGE_TYPE, INFO_TYPE, IMAGE_TYPE, INFO_TYPE)
+            if all(topics.get(n) == t for n, t in zip(names, wanted, strict=True)):
+                found.append(StereoTopics(namespace, names, variant == "image_rect"))  # type: ignore[arg-type]
+    return found
+
+
+def find_stereo_topics(topics: dict[str, str], namespace: str | None = None) -> StereoTopics:
+    """The stereo set in a bag's {topic: msgtype}; raw images win over rectified ones in one namespace."""
+    candidates = _sets(topics)
+    if namespace is not None:
+        candidates = [c for c in candidates if c.namespace == _normalise(namespace)]
+    namespaces = sorted({c.namespace or "/" for c in candidates})
+    if not candidates:
+        where = f" under namespace '{_normalise(namespace) or '/'}'" if namespace is not None else ""
+        msg = (
+            f"the bag has no complete stereo topic set{where} (…/left/image_raw, …/left/camera_info, "
+            f"…/right/image_raw, …/right/camera_info, or image_rect); "
+            f"it has: {', '.join(sorted(topics)) or 'no topics'}"
+        )
+        raise BagError(msg)
+    if len(namespaces) > 1:
+        msg = (
+            f"the bag holds stereo topics under several namespaces ({', '.join(namespaces)}); "
+            "choose one with --namespace"
+        )
+        raise BagError(msg)
+    return min(candidates, key=lambda c: c.rectified)
+
+
+@dataclass
+class ReadStats:
+    """What happened to the input: enough to tell a user why frames are missing."""
+
+    left_images: int = 0
+    right_images: int = 0
+    matched: int = 0
+    sync: SyncCounters | None = None
+    unmatched_at_end: int = 0
+
+
+class StereoBagReader:
+    """Open a bag, find its stereo topics and yield matched sets; use as a context manager."""
+
+    def __init__(self, path: Path | str, *, namespace: str | None = None, sync: SyncPolicy | None = None) -> None:
+        self.path = Path(path)
+        self.policy = sync or SyncPolicy()
+        self._reader = open_reader(self.path)
+        try:
+            self.topics = find_stereo_topics(self.topic_types(), namespace)
+        except BagError:
+            self._reader.close()
+            raise
+        self.stats = ReadStats()
+
+    def topic_types(self) -> dict[str, str]:
+        return {c.topic: c.msgtype for c in self._reader.connections}
+
+    def count(self, topic: str) -> int:
+        return sum(c.msgcount for c in self._reader.connections if c.topic == topic)
+
+    def __enter__(self) -> StereoBagReader:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> Literal[False]:
+        self._reader.close()
+        return False
+
+    def frames(self) -> Iterator[StereoMessages]:
+        """Matched sets in recording order; counts in `stats` what could not be paired."""
+        sync = Synchronizer(len(ROLES), self.policy.queue_size, self.policy.approximate, self.policy.tolerance_ns)
+        self.stats.sync = sync.counters
+        role_of = {name: i for i, name in enumerate(self.topics.names)}
+        connections = [c for c in self._reader.connections if c.topic in role_of]
+        try:
+            for connection, _, raw in self._reader.messages(connections=connections):
+                role = role_of[connection.topic]
+                message = deserialize(raw, connection.msgtype)
+                self._count_input(role)
+                for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
+                    self.stats.matched += 1
+                    yield StereoMessages(stamp, *msgs)
+        except ReaderError as exc:
+            msg = f"{self.path}: cannot read messages ({exc}); the bag may be truncated"
+            raise BagError(msg) from exc
+        self.stats.unmatched_at_end = sync.pending()
+
+    def _count_input(self, role: int) -> None:
+        if role == 0:
+            self.stats.left_images += 1
+        elif role == 2:
+            self.stats.right_images += 1
+
+
+def open_reader(path: Path) -> Reader:
+    """A rosbags Reader, or a BagError that says what to pass instead."""
+    if path.is_file() and path.suffix in (".mcap", ".db3"):
+        msg = f"{path} is a storage file; pass its bag folder (the one with metadata.yaml): {path.parent}"
+        raise BagError(msg)
+    if not path.exists():
+        msg = f"{path} does not exist; pass a rosbag2 folder (with metadata.yaml)"
+        raise BagError(msg)
+    try:
+        reader = Reader(path)
+        reader.open()
+    except (ReaderError, OSError) as exc:
+        msg = f"{path}: not a readable rosbag2 ({exc}); pass a folder made by ros2 bag record or stereo-depth make-bag"
+        raise BagError(msg) from exc
+    return reader
+
+
+def read_messages(path: Path | str, topics: list[str]) -> dict[str, list[Any]]:
+    """Every message on `topics`, deserialized, in recording order (for checks and small bags)."""
+    reader = open_reader(Path(path))
+    try:
+        missing = sorted(set(topics) - {c.topic for c in reader.connections})
+        if missing:
+            have = ", ".join(sorted({c.topic for c in reader.connections}))
+            msg = f"{path} has no topic {', '.join(missing)}; it has: {have}"
+            raise BagError(msg)
+        out: dict[str, list[Any]] = {t: [] for t in topics}
+        connections = [c for c in reader.connections if c.topic in out]
+        for connection, _, raw in reader.messages(connections=connections):
+            out[connection.topic].append(deserialize(raw, connection.msgtype))
+        return out
+    finally:
+        reader.close()

@@ -1,0 +1,153 @@
+"""`stereo-depth process`: a recorded stereo bag into disparity, depth, points2 and left/image_rect."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from stereo_depth.bag.process import ProcessOptions, process_bag
+from stereo_depth.bag.reader import SyncPolicy
+from stereo_depth.bag.writer import STORAGES
+from stereo_depth.commands.common import add_param_options
+from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
+from stereo_depth.errors import ParameterError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    parser = sub.add_parser(
+        "process",
+        help="run the stereo pipeline over a recorded bag and write the results into a new bag",
+        description=(
+            "Reads an MCAP or sqlite3 rosbag2, finds <ns>/left/image_raw, left/camera_info, right/image_raw, "
+            "right/camera_info (or image_rect), pairs them like stereo_node and writes <ns>/disparity, depth, "
+            "points2 and left/image_rect with the input stamps."
+        ),
+    )
+    parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
+    parser.add_argument("out_bag", type=Path, metavar="OUT_BAG")
+    add_process_options(parser)
+    parser.set_defaults(run=run)
+
+
+def add_process_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared with `demo`: parameters, topic choice, sync policy, output files."""
+    add_param_options(parser)
+    parser.add_argument(
+        "--params", type=Path, metavar="FILE", help="ROS parameter YAML (node: ros__parameters: ...); --set wins"
+    )
+    parser.add_argument("--namespace", help="which stereo set to use when the bag holds several")
+    parser.add_argument(
+        "--approximate-sync",
+        action="store_true",
+        default=None,
+        help="pair by nearest stamps instead of equal ones (the node's approximate_sync)",
+    )
+    parser.add_argument(
+        "--approximate-sync-tolerance",
+        type=float,
+        metavar="SECONDS",
+        help="largest stamp difference inside one approximate set (default 0: no limit, as the node)",
+    )
+    parser.add_argument("--queue-size", type=int, help="messages kept per input while pairing (default 5, as the node)")
+    parser.add_argument("--png", type=Path, metavar="DIR", help="write rectified left | colourised disparity per frame")
+    parser.add_argument("--ply", type=Path, metavar="DIR", help="write a coloured point cloud (binary PLY) per frame")
+    parser.add_argument(
+        "--storage", choices=sorted(STORAGES), default="mcap", help="output storage (default %(default)s)"
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace OUT_BAG if it exists")
+
+
+def read_params_file(path: Path) -> dict[str, Any]:
+    """Every parameter of a ROS parameter file's `ros__parameters` sections, merged in file order.
+
+    `/**` and node-name sections alike, so the file that configures stereo_node configures this too.
+    """
+    try:
+        document = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        msg = f"--params {path}: cannot read it as YAML ({exc})"
+        raise ParameterError(msg) from exc
+    sections = _ros_parameters(document)
+    if not sections:
+        msg = f"--params {path}: no 'ros__parameters' section; expected node_name: {{ros__parameters: {{...}}}}"
+        raise ParameterError(msg)
+    merged: dict[str, Any] = {}
+    for section in sections:
+        merged.update(section)
+    return merged
+
+
+def _ros_parameters(node: Any) -> list[dict[str, Any]]:
+    if not isinstance(node, dict):
+        return []
+    if isinstance(node.get("ros__parameters"), dict):
+        return [node["ros__parameters"]]
+    return [section for value in node.values() for section in _ros_parameters(value)]
+
+
+def file_parameters(args: argparse.Namespace) -> dict[str, Any]:
+    return read_params_file(args.params) if getattr(args, "params", None) else {}
+
+
+def params_from(args: argparse.Namespace) -> StereoParams:
+    """--profile, then the StereoParams keys of --params FILE, then --set (the last one wins)."""
+    known = set(field_names()) | set(COMPAT_ALIASES)
+    overrides = {k: v for k, v in file_parameters(args).items() if k in known}
+    overrides.update(parse_assignments(args.assignments))
+    return make_params(args.profile, overrides)
+
+
+def sync_from(args: argparse.Namespace) -> SyncPolicy:
+    """Command-line flags, else the node parameters in --params FILE, else the node's defaults."""
+    node = file_parameters(args)
+    defaults = SyncPolicy()
+
+    def pick(flag: Any, name: str, default: Any) -> Any:
+        return flag if flag is not None else node.get(name, default)
+
+    tolerance = float(pick(args.approximate_sync_tolerance, "approximate_sync_tolerance_seconds", 0.0))
+    queue_size = int(pick(args.queue_size, "queue_size", defaults.queue_size))
+    if tolerance < 0 or queue_size < 1:
+        msg = f"approximate sync tolerance {tolerance} must be >= 0 and queue size {queue_size} >= 1"
+        raise ParameterError(msg)
+    approximate = bool(pick(args.approximate_sync, "approximate_sync", defaults.approximate))
+    return SyncPolicy.from_node_parameters(approximate, queue_size, tolerance)
+
+
+def options_from(args: argparse.Namespace) -> ProcessOptions:
+    return ProcessOptions(
+        namespace=args.namespace,
+        sync=sync_from(args),
+        storage=args.storage,
+        overwrite=args.overwrite,
+        png_dir=args.png,
+        ply_dir=args.ply,
+    )
+
+
+def interrupt_on_sigterm() -> None:
+    """A `kill` unwinds like Ctrl-C, so the half-written bag is deleted rather than left behind."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def run(args: argparse.Namespace) -> int:
+    params = params_from(args)
+    options = options_from(args)
+    interrupt_on_sigterm()
+    summary = process_bag(args.in_bag, args.out_bag, params, options)
+    for line in summary.lines():
+        print(line)
+    print(f"wrote {args.out_bag} ({', '.join(summary.topics)})")
+    if summary.frames_out == 0:
+        print("ERROR: no frame was processed; see the reasons above", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,159 @@
+"""Message <-> array conversions: every stereo camera encoding, row padding, byte order, cloud layout.
+
+Messages are built as rosbags messages and sent through real CDR serialization, so the bytes are
+those a Jazzy publisher puts on the wire.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_depth.bag.types import deserialize, rosbags_types, serialize
+from stereo_depth.core.camera import StereoCamera
+from stereo_depth.errors import ImageError
+from stereo_depth.messages import (
+    array_to_image,
+    camera_info_from_msg,
+    camera_info_to_msg,
+    cloud_to_arrays,
+    disparity_from_msg,
+    disparity_to_msg,
+    image_to_array,
+    image_to_pipeline,
+    make_header,
+    points_to_cloud,
+)
+from stereo_depth.scenes import load_scene
+
+from conftest import SCENES
+
+T = rosbags_types()
+HEADER = make_header(T, 1_700_000_000_123_456_789, "cam_left")
+
+
+def wire(message: object) -> object:
+    return deserialize(serialize(message), message.__msgtype__)  # type: ignore[attr-defined]
+
+
+def raw_image(encoding: str, height: int, width: int, step: int, data: bytes, bigendian: bool = False) -> object:
+    return T.Image(
+        header=HEADER,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=int(bigendian),
+        step=step,
+        data=np.frombuffer(data, np.uint8),
+    )
+
+
+@pytest.fixture(scope="module")
+def bgr() -> np.ndarray:
+    return load_scene(SCENES / "artl").left
+
+
+def test_image_round_trip_keeps_pixels_and_header(bgr: np.ndarray) -> None:
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    for pixels in (
+        grey,
+        bgr,
+        grey.astype(np.uint16) * 257,
+        np.linspace(0, 1, grey.size, dtype=np.float32).reshape(grey.shape),
+    ):
+        msg = wire(array_to_image(T, HEADER, pixels))
+        assert msg.header.frame_id == "cam_left" and msg.header.stamp.nanosec == 123_456_789  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(image_to_array(msg), pixels)
+
+
+@pytest.mark.parametrize(
+    ("encoding", "convert"),
+    [
+        ("rgb8", cv2.COLOR_BGR2RGB),
+        ("rgba8", cv2.COLOR_BGR2RGBA),
+        ("bgra8", cv2.COLOR_BGR2BGRA),
+    ],
+)
+def test_colour_encodings_arrive_as_bgr(bgr: np.ndarray, encoding: str, convert: int) -> None:
+    pixels = cv2.cvtColor(bgr, convert)
+    msg = raw_image(encoding, *pixels.shape[:2], pixels.shape[1] * pixels.shape[2], pixels.tobytes())
+    np.testing.assert_array_equal(image_to_pipeline(msg), bgr)
+
+
+def test_bayer_rggb_is_debayered_to_the_right_colours() -> None:
+    # a flat orange scene seen through an RGGB mosaic: R=200, G=100, B=20
+    mosaic = np.zeros((8, 8), np.uint8)
+    mosaic[0::2, 0::2], mosaic[0::2, 1::2], mosaic[1::2, 0::2], mosaic[1::2, 1::2] = 200, 100, 100, 20
+    out = image_to_pipeline(raw_image("bayer_rggb8", 8, 8, 8, mosaic.tobytes()))
+    b, g, r = out[4, 4]
+    assert (abs(int(r) - 200), abs(int(g) - 100), abs(int(b) - 20)) <= (5, 5, 5)
+
+
+def test_padded_rows_and_big_endian_16_bit_are_read_correctly() -> None:
+    values = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000
+    rows = [values[r].astype(">u2").tobytes() + b"\xee" * 6 for r in range(3)]  # 8 data bytes + 6 padding
+    msg = raw_image("mono16", 3, 4, 14, b"".join(rows), bigendian=True)
+    np.testing.assert_array_equal(image_to_array(msg), values)
+
+
+@pytest.mark.parametrize(
+    ("msg", "reason"),
+    [
+        (raw_image("yuv422", 2, 2, 4, bytes(8)), "'yuv422' is not supported"),
+        (raw_image("32FC1", 2, 2, 8, bytes(16)), "'32FC1' is not supported"),
+        (raw_image("", 2, 2, 2, bytes(4)), "empty encoding"),
+        (raw_image("mono8", 2, 2, 1, bytes(2)), "smaller than one row"),
+        (raw_image("mono8", 2, 2, 2, bytes(3)), "3 bytes but step x height"),
+        (raw_image("mono8", 0, 0, 0, b""), "zero-sized"),
+    ],
+)
+def test_undecodable_images_are_refused_by_name(msg: object, reason: str) -> None:
+    with pytest.raises(ImageError, match=reason):
+        image_to_pipeline(msg)
+
+
+def test_image_larger_than_the_limit_is_refused_before_reading_it() -> None:
+    with pytest.raises(ImageError, match="limit"):
+        image_to_array(raw_image("mono8", 100, 100, 100, bytes(10_000)), max_pixels=5_000)
+
+
+def test_camera_info_round_trip() -> None:
+    left, _ = load_scene(SCENES / "artl").camera_infos()
+    back = camera_info_from_msg(wire(camera_info_to_msg(T, HEADER, left)))
+    assert back == left
+
+
+@pytest.fixture(scope="module")
+def camera() -> StereoCamera:
+    return StereoCamera(*load_scene(SCENES / "artl").camera_infos())
+
+
+def test_disparity_message_is_offset_adjusted_like_stereo_image_proc(camera: StereoCamera) -> None:
+    disparity = np.array([[20.0, np.nan], [30.5, 16.0]], np.float32)
+    msg = wire(disparity_to_msg(T, HEADER, disparity, camera, 16, 64, (0, 0, 2, 2)))
+    offset = camera.disparity_offset  # cx_l - cx_r = -doffs = -50
+    assert msg.f == camera.fx and msg.t == pytest.approx(0.160)  # type: ignore[attr-defined]
+    assert msg.min_disparity == pytest.approx(16 - offset)  # type: ignore[attr-defined]
+    assert msg.max_disparity == pytest.approx(16 - offset + 63)  # type: ignore[attr-defined]
+    image = image_to_array(msg.image)  # type: ignore[attr-defined]
+    assert image[0, 0] == pytest.approx(20.0 - offset)
+    assert image[0, 1] < msg.min_disparity  # type: ignore[attr-defined]
+    back = disparity_from_msg(msg)
+    assert back[1, 1] == pytest.approx(16.0 - offset)  # a valid point at the minimum disparity is kept
+    # Z = f * t / d' with no further offset gives the calibrated depth
+    assert msg.f * msg.t / back[0, 0] == pytest.approx(0.160 * 935.0 / (20.0 + 50.0))  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(("avoid_padding", "offsets", "step"), [(False, [0, 4, 8, 16], 32), (True, [0, 4, 8, 12], 16)])
+def test_cloud_layout_matches_stereo_image_proc(avoid_padding: bool, offsets: list[int], step: int) -> None:
+    points = np.random.default_rng(0).random((3, 4, 3)).astype(np.float32)
+    points[1, 2] = np.nan
+    color = np.zeros((3, 4, 3), np.uint8)
+    color[0, 0] = (0, 0, 255)  # BGR red
+    msg = wire(points_to_cloud(T, HEADER, points, color, avoid_padding))
+    assert [f.offset for f in msg.fields] == offsets and msg.point_step == step  # type: ignore[attr-defined]
+    assert (msg.height, msg.width, msg.is_dense) == (3, 4, False)  # type: ignore[attr-defined]
+    xyz, rgb = cloud_to_arrays(msg)
+    np.testing.assert_array_equal(xyz, points)
+    assert rgb is not None and rgb[0, 0] == 0x00FF0000
