@@ -21,10 +21,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
+from stereo_depth.camera_info_yaml import read_camera_info_yaml
 from stereo_depth.core.camera import CameraInfo
-from stereo_depth.errors import BagError, CalibrationError
+from stereo_depth.errors import BagError
 from stereo_depth.euroc import stereo_camera_infos
 from stereo_depth.scenes import Scene, load_scene, read_calib
 
@@ -124,24 +124,6 @@ def _calibration(root: Path) -> tuple[CameraInfo, CameraInfo] | None:
     if (root / "left.yaml").exists() and (root / "right.yaml").exists():
         return read_camera_info_yaml(root / "left.yaml"), read_camera_info_yaml(root / "right.yaml")
     return None
-
-
-def read_camera_info_yaml(path: Path) -> CameraInfo:
-    """camera_calibration's YAML (image_width, camera_matrix: {data: [...]}, ...)."""
-    try:
-        data = yaml.safe_load(path.read_text())
-        return CameraInfo.from_values(
-            data["image_width"],
-            data["image_height"],
-            data["camera_matrix"]["data"],
-            data["distortion_coefficients"]["data"],
-            data["rectification_matrix"]["data"],
-            data["projection_matrix"]["data"],
-            data.get("distortion_model", "plumb_bob"),
-        )
-    except (yaml.YAMLError, KeyError, TypeError) as exc:
-        msg = f"{path}: not a camera_info YAML ({exc!r}); expected camera_calibration's format"
-        raise CalibrationError(msg) from exc
 
 
 def _read_image(path: Path) -> np.ndarray:
