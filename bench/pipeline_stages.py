@@ -1,9 +1,13 @@
-"""Per-stage time of StereoPipeline for each profile, against the bare OpenCV calls for the same work
-(profiles that downsample or fill holes have no bare equivalent: their ratio column shows '-').
+"""Per-stage time of stereo_node's work for each profile, against the bare OpenCV calls for the same work
+(profiles that downsample or fill holes have no bare equivalent: their ratio columns show '-').
 
 Real raw EuRoC pairs (test/data/euroc) resized to each resolution, calibration scaled with them. The
-bare baseline does what a hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D.
-Both run in the same process, interleaved, and the table gives medians and the ratio ours / bare.
+stages: decode (two rclpy Images to arrays, as the node reads them), the StereoPipeline stages (rectify,
+match, filter, depth, points), encode (DisparityImage and the organized 32-byte-point PointCloud2 with
+rgb, as the node publishes them, with the node's reused cloud buffer). The bare baseline does what a
+hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D. Both run in the same
+process, interleaved, and the table gives medians and two ratios: the pipeline alone / bare, and
+everything the node does per frame (decode + pipeline + encode) / bare.
 
     .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc]
 """
@@ -21,12 +25,16 @@ import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.matching import Matcher, create_matcher
-from stereo_depth.core.params import make_params
-from stereo_depth.core.pipeline import STAGES, StereoPipeline
+from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.messages import CloudBuffer, array_to_image, image_to_pipeline, make_header, points_to_cloud
+from stereo_depth.ros.stereo_io import disparity_message
+from stereo_depth.ros.types import RCLPY_TYPES
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 RESOLUTIONS = ((640, 480), (1280, 720))
+COLUMNS = ("decode", *STAGES, "encode")
 
 
 def scaled_info(info: CameraInfo, width: int, height: int) -> CameraInfo:
@@ -54,6 +62,30 @@ def bare_opencv(left: np.ndarray, right: np.ndarray, camera: StereoCamera, match
     return (time.perf_counter() - start) * 1000.0
 
 
+def encode(result: StereoResult, params: StereoParams, buffer: CloudBuffer) -> None:
+    """The two messages stereo_node builds for a disparity + points2 subscriber (publish() not included)."""
+    assert result.camera is not None and result.points is not None
+    header = make_header(RCLPY_TYPES, 1, "left")
+    disparity_message(header, result.disparity, result.camera, params)
+    points_to_cloud(RCLPY_TYPES, header, result.points, result.left_rect, buffer=buffer)
+
+
+def timed_frame(
+    pipeline: StereoPipeline, messages: tuple[object, object], camera: StereoCamera, buffer: CloudBuffer
+) -> dict[str, float]:
+    start = time.perf_counter()
+    left, right = image_to_pipeline(messages[0]), image_to_pipeline(messages[1])
+    decoded = time.perf_counter()
+    result = pipeline.process(left, right, camera)
+    processed = time.perf_counter()
+    encode(result, pipeline.params, buffer)
+    end = time.perf_counter()
+    ms = {"decode": (decoded - start) * 1000.0, "encode": (end - processed) * 1000.0, **result.timings_ms}
+    ms["pipeline"] = (processed - decoded) * 1000.0
+    ms["node"] = (end - start) * 1000.0
+    return ms
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)
@@ -61,33 +93,32 @@ def main() -> None:
     parser.add_argument("--disparity-range", type=int, default=64)
     args = parser.parse_args()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
-    header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>9s}" for s in STAGES)
-    print(header + f"{'total':>9s}{'bare cv':>9s}{'ratio':>7s}")
+    header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>8s}" for s in COLUMNS)
+    print(header + f"{'pipeline':>9s}{'node':>8s}{'bare cv':>8s}{'pipe/bare':>10s}{'node/bare':>10s}")
     for width, height in RESOLUTIONS:
         left, right, camera = load_pair(width, height)
+        header_msg = make_header(RCLPY_TYPES, 1, "left")
+        messages = (array_to_image(RCLPY_TYPES, header_msg, left), array_to_image(RCLPY_TYPES, header_msg, right))
         for profile in args.profiles:
             params = make_params(profile, {"disparity_range": args.disparity_range})
             pipeline = StereoPipeline(params)
+            buffer = CloudBuffer()
             same_work = params.downsample == 1 and not params.fill_holes
             bare_matcher = create_matcher(params)
-            stages: dict[str, list[float]] = {s: [] for s in STAGES}
-            totals, bare = [], []
+            runs: list[dict[str, float]] = []
+            bare = []
             for _ in range(args.repeat + 2):
-                start = time.perf_counter()
-                result = pipeline.process(left, right, camera)
-                totals.append((time.perf_counter() - start) * 1000.0)
-                for s in STAGES:
-                    stages[s].append(result.timings_ms[s])
+                runs.append(timed_frame(pipeline, messages, camera, buffer))
                 if same_work:
                     bare.append(bare_opencv(left, right, camera, bare_matcher))
-            med = {s: statistics.median(v[2:]) for s, v in stages.items()}
-            total = statistics.median(totals[2:])
-            row = f"{profile:18s}{f'{width}x{height}':>10s}" + "".join(f"{med[s]:9.1f}" for s in STAGES)
+            med = {k: statistics.median(r[k] for r in runs[2:]) for k in runs[0]}
+            row = f"{profile:18s}{f'{width}x{height}':>10s}" + "".join(f"{med[c]:8.1f}" for c in COLUMNS)
+            row += f"{med['pipeline']:9.1f}{med['node']:8.1f}"
             if same_work:
                 bare_ms = statistics.median(bare[2:])
-                row += f"{total:9.1f}{bare_ms:9.1f}{total / bare_ms:7.2f}"
+                row += f"{bare_ms:8.1f}{med['pipeline'] / bare_ms:10.2f}{med['node'] / bare_ms:10.2f}"
             else:  # downsampling / hole filling: no bare OpenCV call does the same work
-                row += f"{total:9.1f}{'-':>9s}{'-':>7s}"
+                row += f"{'-':>8s}{'-':>10s}{'-':>10s}"
             print(row, flush=True)
 
 

@@ -1,0 +1,457 @@
+"""End to end over DDS: replayed frames -> stereo_node -> a monitor, each in its own process.
+
+Measures what the ROS 1 stereo_image_proc anchor (../shared/anchors/ros1_stereo_image_proc) measures,
+the same way, on the same kind of frames:
+  * a publisher process replays the anchor's synthetic 640x480 / 1280x720 mono8 stream (bench/anchor_frames.py,
+    same recipe and seed) at a set rate: left/right image_raw + camera_info, reliable, pre-serialized;
+  * stereo_node runs in its own process (`python -m stereo_depth.nodes.stereo_node`, namespace /stereo);
+  * a monitor process subscribes to left/image_raw, disparity and points2 (reliable, raw CDR so that
+    10 MB clouds cost it no deserialization) and logs every receipt with DDS's reception time;
+  * latency = monitor's receipt of the output with stamp s - its receipt of left/image_raw with stamp s;
+    rate = outputs / (last - first receipt); dropped = replayed frames with no output;
+    node CPU = utime + stime of the stereo_node process over the active window (100% = 1 core).
+A few warm-up frames (not counted) go first, so one-off start-up work (imports, numba cache, first
+allocation) is not billed to the stream. Every process it starts is stopped by PID.
+
+All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_DOMAIN_ID (default 15) and the repository's
+Fast DDS profile for large images (config/fastdds_large_images.xml; --no-shm-profile leaves it out).
+
+    .venv/bin/python bench/e2e_dds.py                 # every case once
+    .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+TICK = os.sysconf("SC_CLK_TCK")
+NAMESPACE = "/stereo"
+FIRST_STAMP_NS = 1_700_000_000 * 10**9
+WARMUP_FRAMES = 10
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    width: int
+    height: int
+    rate_hz: float
+    params: tuple[str, ...]  # stereo_node -p name:=value
+    points: bool = True  # the monitor subscribes to points2
+
+
+ANCHOR = ("profile:=stereo_image_proc",)  # BM, 64 disparities, window 15: the anchor's defaults
+CASES = {
+    c.name: c
+    for c in (
+        Case("fast_vga_15", 640, 480, 15.0, ("profile:=fast",)),
+        Case("fast_vga_30", 640, 480, 30.0, ("profile:=fast",)),
+        Case("fast_vga_60", 640, 480, 60.0, ("profile:=fast",)),
+        Case("fast_vga_30_processed", 640, 480, 30.0, ("profile:=fast", "downsample_output:=processed")),
+        Case("bm_vga_30", 640, 480, 30.0, ANCHOR),
+        Case("bm_vga_30_disparity_only", 640, 480, 30.0, ANCHOR, points=False),
+        Case("bm_vga_90", 640, 480, 90.0, ANCHOR),
+        Case("sgbm_vga_30", 640, 480, 30.0, (*ANCHOR, "stereo_algorithm:=1")),
+        Case("bm_720p_30", 1280, 720, 30.0, ANCHOR),
+    )
+}
+ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
+    "bm_vga_30": "bm vga 1x",
+    "bm_vga_30_disparity_only": "bm vga 1x disparity-only",
+    "bm_vga_90": "bm vga 3x",
+    "sgbm_vga_30": "sgbm vga 1x",
+    "bm_720p_30": "bm hd720 1x",
+}
+
+
+def ros_env(domain_id: str, shm_profile: bool) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain_id, PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    if shm_profile:
+        profile = str(REPO / "config" / "fastdds_large_images.xml")
+        env.update(FASTRTPS_DEFAULT_PROFILES_FILE=profile, FASTDDS_DEFAULT_PROFILES_FILE=profile)
+    return env
+
+
+# ------------------------------------------------------------------------------------------ publisher
+
+
+def run_publisher(args: argparse.Namespace) -> None:
+    """Pre-serialize every message, wait for the node and the monitor, then replay on an absolute schedule."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
+    from stereo_depth.ros.types import RCLPY_TYPES
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from anchor_frames import FRAME_ID, camera_infos, frames
+
+    rclpy.init()
+    node = rclpy.create_node("e2e_replay")
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    topics = [("left/image_raw", Image), ("left/camera_info", CameraInfo)]
+    topics += [("right/image_raw", Image), ("right/camera_info", CameraInfo)]
+    pubs = [node.create_publisher(t, f"{NAMESPACE}/{name}", qos) for name, t in topics]
+    infos = camera_infos(args.width, args.height)
+    total = WARMUP_FRAMES + args.frames
+    period_ns = round(1e9 / args.rate)
+    sets: list[list[bytes]] = []
+    for i, (left, right) in enumerate(frames(args.width, args.height, total)):
+        header = make_header(RCLPY_TYPES, FIRST_STAMP_NS + (i - WARMUP_FRAMES) * period_ns, FRAME_ID)
+        msgs = [array_to_image(RCLPY_TYPES, header, left), camera_info_to_msg(RCLPY_TYPES, header, infos[0])]
+        msgs += [array_to_image(RCLPY_TYPES, header, right), camera_info_to_msg(RCLPY_TYPES, header, infos[1])]
+        sets.append([serialize_message(m) for m in msgs])
+    deadline = time.monotonic() + 60
+    wanted = (2, 1, 1, 1)  # left image: stereo_node + monitor
+    while any(p.get_subscription_count() < n for p, n in zip(pubs, wanted, strict=True)):
+        if time.monotonic() > deadline:
+            sys.exit("publisher: stereo_node / monitor did not subscribe within 60 s")
+        time.sleep(0.05)
+    time.sleep(1.0)  # let both ends finish matching (reliable writers need the readers' acks)
+    start = time.monotonic() + 0.5
+    for i, messages in enumerate(sets):
+        if i == WARMUP_FRAMES:
+            time.sleep(2.0)
+            start = time.monotonic() - i / args.rate
+        delay = start + i / args.rate - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        for pub, data in zip(pubs, messages, strict=True):
+            pub.publish(data)
+    time.sleep(0.5)
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+# ------------------------------------------------------------------------------------------ monitor
+
+
+def run_monitor(args: argparse.Namespace) -> None:
+    """Log (topic, stamp, reception time) for every message; write them as JSON on SIGINT."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image, PointCloud2
+    from stereo_msgs.msg import DisparityImage
+
+    rclpy.init()
+    node = rclpy.create_node("e2e_monitor")
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    records: dict[str, list[tuple[int, int]]] = {"in": [], "disparity": [], "points2": []}
+    diagnostics: dict[str, str] = {}
+
+    def logger(topic: str) -> Any:
+        log = records[topic]
+
+        def receive(data: bytes, info: Any) -> None:
+            # CDR: 4-byte encapsulation header, then std_msgs/Header's stamp (int32 sec, uint32 nanosec)
+            sec = int.from_bytes(data[4:8], "little", signed=True)
+            nanosec = int.from_bytes(data[8:12], "little")
+            log.append((sec * 1_000_000_000 + nanosec, int(info["received_timestamp"])))
+
+        return receive
+
+    def keep_diagnostics(msg: Any) -> None:
+        diagnostics.update({kv.key: kv.value for status in msg.status for kv in status.values})
+
+    subscribed = [("left/image_raw", Image, "in"), ("disparity", DisparityImage, "disparity")]
+    if args.points:
+        subscribed.append(("points2", PointCloud2, "points2"))
+    subscriptions = [
+        node.create_subscription(t, f"{NAMESPACE}/{name}", logger(key), qos, raw=True) for name, t, key in subscribed
+    ]
+    subscriptions.append(node.create_subscription(DiagnosticArray, f"{NAMESPACE}/diagnostics", keep_diagnostics, 10))
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        usage = os.times()
+        Path(args.out).write_text(
+            json.dumps({"records": records, "diagnostics": diagnostics, "cpu_s": usage.user + usage.system})
+        )
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+# ------------------------------------------------------------------------------------------ orchestrator
+
+
+def proc_cpu_s(pid: int) -> float | None:
+    """utime + stime of pid (all its threads), None once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def machine_ticks() -> tuple[int, int]:
+    values = [int(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    return sum(values), values[3] + values[4]
+
+
+def start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
+    with log.open("wb") as out:
+        return subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def stop(process: subprocess.Popen[bytes] | None, timeout: float = 10.0) -> None:
+    """SIGINT to the process we started (its own session), then SIGKILL if it does not end."""
+    if process is None or process.poll() is not None:
+        return
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
+def output_stats(records: list[tuple[int, int]], t_in: dict[int, int], frames: int) -> dict[str, Any]:
+    measured = [(s, t) for s, t in records if s in t_in]
+    out: dict[str, Any] = {"received": len(measured), "dropped": frames - len({s for s, _ in measured})}
+    times = sorted(t for _, t in measured)
+    span = (times[-1] - times[0]) / 1e9 if len(times) > 1 else 0.0
+    out["hz"] = (len(times) - 1) / span if span > 0 else 0.0
+    latency = sorted((t - t_in[s]) / 1e6 for s, t in measured)
+    if latency:
+        out["lat_median"] = statistics.median(latency)
+        out["lat_p95"] = latency[round(0.95 * (len(latency) - 1))]
+        out["lat_max"] = latency[-1]
+    return out
+
+
+def run_case(case: Case, args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
+    env = ros_env(args.domain_id, not args.no_shm_profile)
+    me = [sys.executable, str(Path(__file__).resolve())]
+    monitor_out = workdir / f"{case.name}.monitor.json"
+    node_cmd = [sys.executable, "-m", args.node_module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
+    for param in (*case.params, *args.param):
+        node_cmd += ["-p", param]
+    node = start(node_cmd, env, workdir / f"{case.name}.node.log")
+    monitor = publisher = None
+    samples: list[tuple[float, float | None, int, int]] = []
+
+    def sample() -> None:
+        total, idle = machine_ticks()
+        samples.append((time.time(), proc_cpu_s(node.pid), total, idle))
+
+    try:
+        monitor_cmd = [*me, "monitor", "--out", str(monitor_out)] + ([] if case.points else ["--no-points"])
+        monitor = start(monitor_cmd, env, workdir / f"{case.name}.monitor.log")
+        publisher = start(
+            [
+                *me,
+                "publish",
+                "--width",
+                str(case.width),
+                "--height",
+                str(case.height),
+                "--rate",
+                str(case.rate_hz),
+                "--frames",
+                str(args.frames),
+            ],
+            env,
+            workdir / f"{case.name}.publisher.log",
+        )
+        while publisher.poll() is None:
+            if node.poll() is not None:
+                sys.exit(f"stereo_node exited, see {workdir / f'{case.name}.node.log'}")
+            sample()
+            time.sleep(0.1)
+        last = None
+        for _ in range(50):  # drain: until the node's CPU time stops moving (at most 10 s)
+            time.sleep(0.2)
+            sample()
+            if samples[-1][1] == last:
+                break
+            last = samples[-1][1]
+    finally:
+        stop(publisher)
+        stop(monitor)
+        stop(node)
+    result = json.loads(monitor_out.read_text())
+    return summarize(case, args.frames, result, samples)
+
+
+def summarize(case: Case, frames: int, monitor: dict[str, Any], samples: list[Any]) -> dict[str, Any]:
+    records = {k: [tuple(r) for r in v] for k, v in monitor["records"].items()}
+    t_in = {s: t for s, t in records["in"] if s >= FIRST_STAMP_NS}
+    row: dict[str, Any] = {"case": case.name, "frames": frames, "inputs_seen": len(t_in)}
+    row["disparity"] = output_stats(records["disparity"], t_in, frames)
+    row["points2"] = output_stats(records["points2"], t_in, frames) if case.points else None
+    outputs = [t for key in ("disparity", "points2") for s, t in records[key] if s in t_in]
+    if not t_in or not outputs:
+        sys.exit(f"{case.name}: {len(t_in)} inputs and {len(outputs)} outputs seen; see the logs (--logdir)")
+    t0, t1 = min(t_in.values()) / 1e9, max(outputs) / 1e9
+    before = [s for s in samples if s[0] <= t0] or samples[:1]
+    after = [s for s in samples if s[0] >= t1] or samples[-1:]
+    s0, s1 = before[-1], after[0]
+    active = s1[0] - s0[0]
+    node_cpu_s = s1[1] - s0[1] if s0[1] is not None and s1[1] is not None else float("nan")
+    row["node_cpu_pct"] = 100.0 * node_cpu_s / active if active > 0 else float("nan")
+    row["node_cpu_ms_per_frame"] = 1000.0 * node_cpu_s / max(1, row["disparity"]["received"])
+    row["machine_busy_cores"] = (1.0 - (s1[3] - s0[3]) / max(1, s1[2] - s0[2])) * (os.cpu_count() or 1)
+    diagnostics = monitor["diagnostics"]
+    row["node_dropped_diag"] = diagnostics.get("dropped frames", "?")
+    row["node_stage_ms"] = {
+        k[: -len(" time (ms)")]: float(v) for k, v in diagnostics.items() if k.endswith(" time (ms)")
+    }
+    row["monitor_cpu_s"] = monitor["cpu_s"]
+    return row
+
+
+def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median of every figure over the repeats of one case (like the anchor's summarize.py)."""
+
+    def med(values: list[Any]) -> Any:
+        numbers = [v for v in values if isinstance(v, (int, float)) and v == v]
+        return statistics.median(numbers) if numbers else values[0]
+
+    def merge(dicts: list[dict[str, Any]]) -> dict[str, Any]:
+        return {
+            k: merge([d[k] for d in dicts]) if isinstance(dicts[0][k], dict) else med([d[k] for d in dicts])
+            for k in dicts[0]
+        }
+
+    merged = merge([{k: v for k, v in r.items() if v is not None} for r in rows])
+    merged["points2"] = merged.get("points2")
+    merged["case"], merged["runs"] = rows[0]["case"], len(rows)
+    return merged
+
+
+def latency_text(output: dict[str, Any] | None) -> str:
+    if not output or "lat_median" not in output:
+        return "-"
+    return f"{output['lat_median']:.1f} / {output['lat_p95']:.1f} / {output['lat_max']:.1f}"
+
+
+def print_header() -> None:
+    print(
+        f"{'case':26s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>9s}{'diag':>6s}"
+        f"{'disp lat med/p95/max ms':>25s}{'pts lat med/p95/max ms':>25s}{'node CPU':>9s}{'ms/frame':>9s}"
+        f"{'machine':>8s}"
+    )
+
+
+def print_row(r: dict[str, Any]) -> None:
+    """dropped: replayed frames without a disparity; diag: the node's own 'dropped frames' count."""
+    d, p = r["disparity"], r["points2"]
+    points_hz = f"{p['hz']:.1f}" if p else "-"
+    dropped = f"{d['dropped']:.0f}/{r['frames']}"
+    print(
+        f"{r['case']:26s}{d['hz']:8.1f}{points_hz:>8s}{dropped:>9s}{r['node_dropped_diag']!s:>6s}"
+        f"{latency_text(d):>25s}{latency_text(p):>25s}{r['node_cpu_pct']:8.0f}%{r['node_cpu_ms_per_frame']:9.1f}"
+        f"{r['machine_busy_cores']:8.2f}",
+        flush=True,
+    )
+
+
+def print_anchor_comparison(rows: list[dict[str, Any]], anchor_file: Path) -> None:
+    """Side by side with the anchor's summary.json (written by its run.sh), case by case."""
+    anchor = json.loads(anchor_file.read_text())
+    print(
+        f"\n{'case (anchor name)':28s}{'':12s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>8s}"
+        f"{'disp lat ms':>12s}{'pts lat ms':>11s}{'CPU %':>7s}"
+    )
+    for r in rows:
+        a = anchor.get(ANCHOR_NAMES.get(r["case"], ""))
+        if a is None:
+            continue
+        name = ANCHOR_NAMES[r["case"]]
+        p = r["points2"] or {}
+        a_pts = f"{a['points2_hz']:.1f}" if a.get("points2_hz") else "-"
+        a_pl = f"{a['points2_lat_ms_median']:.1f}" if a.get("points2_lat_ms_median") else "-"
+        print(
+            f"{name:28s}{'C++ ROS 1':12s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a['disparity_dropped']:8.0f}"
+            f"{a['disparity_lat_ms_median']:12.1f}{a_pl:>11s}{a['node_cpu_pct']:7.0f}"
+        )
+        ours_pts = f"{p['hz']:.1f}" if p else "-"
+        ours_pl = f"{p['lat_median']:.1f}" if p.get("lat_median") else "-"
+        print(
+            f"{'':28s}{'stereo_node':12s}{r['disparity']['hz']:8.1f}{ours_pts:>8s}{r['disparity']['dropped']:8.0f}"
+            f"{r['disparity']['lat_median']:12.1f}{ours_pl:>11s}{r['node_cpu_pct']:7.0f}"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="role")
+    pub = sub.add_parser("publish")
+    pub.add_argument("--width", type=int, default=640)
+    pub.add_argument("--height", type=int, default=480)
+    pub.add_argument("--rate", type=float, default=30.0)
+    pub.add_argument("--frames", type=int, default=300)
+    mon = sub.add_parser("monitor")
+    mon.add_argument("--out", required=True)
+    mon.add_argument("--no-points", dest="points", action="store_false")
+    parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
+    parser.add_argument("--repeats", type=int, default=1, help="runs per case; the table shows medians")
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
+    parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
+    parser.add_argument("--domain-id", default=os.environ.get("ROS_DOMAIN_ID", "15"))
+    parser.add_argument("--no-shm-profile", action="store_true", help="Fast DDS defaults (no large SHM segment)")
+    parser.add_argument(
+        "--anchor",
+        type=Path,
+        default=Path("/tmp/sip_anchor/summary.json"),
+        help="the anchor's summary.json, printed side by side when it exists",
+    )
+    parser.add_argument("--json", type=Path, help="write every run's figures here")
+    parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
+    args = parser.parse_args()
+    if args.role == "publish":
+        run_publisher(args)
+        return
+    if args.role == "monitor":
+        run_monitor(args)
+        return
+    load = Path("/proc/loadavg").read_text().split()[:3]
+    print(
+        f"stereo_node end to end over DDS: {args.frames} frames per case, {os.cpu_count()} cores, "
+        f"load before {' '.join(load)}, ROS_DOMAIN_ID {args.domain_id}, "
+        f"{'Fast DDS defaults' if args.no_shm_profile else 'config/fastdds_large_images.xml'}",
+        flush=True,
+    )
+    all_runs: list[dict[str, Any]] = []
+    rows = []
+    print_header()
+    with tempfile.TemporaryDirectory(prefix="e2e_dds_") as tmp:
+        logdir = args.logdir or Path(tmp)
+        logdir.mkdir(parents=True, exist_ok=True)
+        for name in args.cases:
+            runs = [run_case(CASES[name], args, logdir) for _ in range(args.repeats)]
+            all_runs += runs
+            rows.append(median_row(runs) if len(runs) > 1 else runs[0])
+            print_row(rows[-1])
+    print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
+    for r in rows:
+        print(f"{r['case']:26s}" + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
+    if args.json:
+        args.json.write_text(json.dumps(all_runs, indent=1))
+    if args.anchor.exists():
+        print_anchor_comparison(rows, args.anchor)
+
+
+if __name__ == "__main__":
+    main()
