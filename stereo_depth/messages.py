@@ -97,6 +97,19 @@ def _bytes(types: MessageTypes, data: np.ndarray) -> Any:
     return out
 
 
+def _with_data(types: MessageTypes, cls: Any, data: Any, **fields: Any) -> Any:
+    """A message whose `data` is the buffer given, not a copy; rosbags' dataclasses take it as is.
+
+    rclpy's constructor copies `data` into a new array.array (3.6 ms for a VGA cloud), and so does its
+    setter unless the message checks its fields: only then does it keep an array.array as it is.
+    """
+    if types.is_rosbags:
+        return cls(**fields, data=data)
+    msg = cls(check_fields=True, **fields)
+    msg.data = data
+    return msg
+
+
 def _floats(types: MessageTypes, values: np.ndarray) -> Any:
     values = np.asarray(values, dtype=np.float64).ravel()
     return values if types.is_rosbags else array.array("d", values.tobytes())
@@ -113,22 +126,34 @@ def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray
     dtype_code, channels, _ = ENCODINGS[encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
-        msg_text = f"image is {width}x{height}: zero-sized"
+        msg_text = f"image is {width}x{height}: zero-sized; the driver published an empty image"
         raise ImageError(msg_text)
     if height * width > max_pixels:
-        msg_text = f"image is {width}x{height}, more than the limit of {max_pixels} pixels (max_image_pixels)"
+        msg_text = (
+            f"image is {width}x{height}, more than the limit of {max_pixels} pixels; "
+            "raise the max_image_pixels parameter if images this large are intended"
+        )
         raise ImageError(msg_text)
     dtype = np.dtype(dtype_code).newbyteorder(">" if msg.is_bigendian else "<")
     row_bytes = width * channels * dtype.itemsize
     if step < row_bytes:
-        msg_text = f"image step {step} is smaller than one row of {width} {encoding} pixels ({row_bytes} bytes)"
+        msg_text = (
+            f"image step {step} is smaller than one row of {width} {encoding} pixels ({row_bytes} bytes); "
+            "the driver sets a wrong step, width or encoding"
+        )
         raise ImageError(msg_text)
     buffer = np.frombuffer(msg.data, dtype=np.uint8)
     if buffer.size != step * height:
-        msg_text = f"image data has {buffer.size} bytes but step x height = {step} x {height} = {step * height}"
+        msg_text = (
+            f"image data has {buffer.size} bytes but step x height = {step} x {height} = {step * height}; "
+            "the message is truncated or the driver sets a wrong step or height"
+        )
         raise ImageError(msg_text)
     if step % dtype.itemsize:
-        msg_text = f"image step {step} is not a multiple of the {dtype.itemsize}-byte pixel component"
+        msg_text = (
+            f"image step {step} is not a multiple of the {dtype.itemsize}-byte pixel component; "
+            "the driver sets a wrong step or encoding"
+        )
         raise ImageError(msg_text)
     rows = buffer.reshape(height, step)[:, :row_bytes]
     pixels = rows.view(dtype).reshape(height, width, channels)
@@ -168,14 +193,16 @@ def array_to_image(types: MessageTypes, header: Any, pixels: np.ndarray, encodin
     encoding = encoding or encoding_for(pixels)
     height, width = pixels.shape[:2]
     step = width * pixels.itemsize * (pixels.shape[2] if pixels.ndim == 3 else 1)
-    return types.Image(
+    return _with_data(
+        types,
+        types.Image,
+        _bytes(types, pixels),
         header=header,
         height=height,
         width=width,
         encoding=encoding,
         is_bigendian=int(sys.byteorder == "big"),
         step=step,
-        data=_bytes(types, pixels),
     )
 
 
@@ -265,22 +292,64 @@ def pack_rgb(bgr: np.ndarray) -> np.ndarray:
     return (r << 16) | (g << 8) | b
 
 
+class CloudBuffer:
+    """The bytes of the last cloud, handed to the next cloud of the same size and layout.
+
+    A VGA cloud is 10 MB: allocating and zeroing it per frame costs more than packing it. rclpy's
+    `publish()` serializes before it returns, so a node may reuse the buffer for its next frame; keep
+    one per publisher and never reuse it while a message built on it is still to be published.
+    Padding bytes are zeroed once and never written, so a reused buffer holds what a fresh one would.
+    """
+
+    def __init__(self) -> None:
+        self._key: tuple[object, ...] | None = None
+        self._data: Any = None
+
+    def get(self, types: MessageTypes, key: tuple[object, ...], size: int) -> Any:
+        if self._key != key:
+            self._data = np.zeros(size, np.uint8) if types.is_rosbags else array.array("B", bytes(size))
+            self._key = key
+        return self._data
+
+
+def _pack_points(data: Any, points: np.ndarray, color: np.ndarray | None, rgb_offset: int, point_step: int) -> None:
+    """One vectorized write per field into the records: xyz as one 12-byte item, rgb as one uint32."""
+    height, width = points.shape[:2]
+    records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
+    xyz = np.ascontiguousarray(points, dtype=np.float32).view(np.dtype("V12"))
+    records[:, :, 0:12].view(np.dtype("V12"))[...] = xyz
+    if color is None:
+        return
+    rgb = records[:, :, rgb_offset : rgb_offset + 4].view(np.uint32)[:, :, 0]
+    if color.ndim == 2:  # grey: r = g = b
+        np.multiply(color, np.uint32(0x010101), out=rgb, dtype=np.uint32)
+    else:
+        rgb[...] = pack_rgb(color)
+
+
 def points_to_cloud(
     types: MessageTypes,
     header: Any,
     points: np.ndarray,
     color: np.ndarray | None = None,
     avoid_padding: bool = False,
+    buffer: CloudBuffer | None = None,
 ) -> Any:
-    """Organized PointCloud2 (height x width), NaN for invalid points, is_dense false."""
+    """Organized PointCloud2 (height x width), NaN for invalid points, is_dense false.
+
+    `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous cloud (see CloudBuffer).
+    """
     height, width = points.shape[:2]
     fields, point_step = cloud_layout(color is not None, avoid_padding)
-    buffer = np.zeros((height, width, point_step // 4), dtype=np.float32)
-    buffer[:, :, 0:3] = points
-    if color is not None:
-        grey = color if color.ndim == 3 else cv2.cvtColor(color, cv2.COLOR_GRAY2BGR)
-        buffer[:, :, fields[3][1] // 4] = pack_rgb(grey).view(np.float32)
-    return types.PointCloud2(
+    size = height * width * point_step
+    key = (height, width, tuple(fields), point_step)
+    data = (buffer or CloudBuffer()).get(types, key, size)
+    rgb_offset = fields[3][1] if color is not None else 0
+    _pack_points(data, points, color, rgb_offset, point_step)
+    return _with_data(
+        types,
+        types.PointCloud2,
+        data,
         header=header,
         height=height,
         width=width,
@@ -288,7 +357,6 @@ def points_to_cloud(
         is_bigendian=sys.byteorder == "big",
         point_step=point_step,
         row_step=point_step * width,
-        data=_bytes(types, buffer),
         is_dense=False,
     )
 

@@ -22,7 +22,7 @@ from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult, output_params
 from stereo_depth.errors import StereoDepthError
 from stereo_depth.messages import (
     MessageTypes,
@@ -85,6 +85,7 @@ class ProcessSummary:
 def frame_outputs(types: MessageTypes, header: Any, result: StereoResult, params: StereoParams) -> dict[str, Any]:
     """The messages stereo_node publishes for one frame (with its default options), by output name."""
     assert result.camera is not None and result.depth is not None and result.points is not None
+    params = output_params(params)  # the disparity's own size and range (downsample_output)
     height, width = result.disparity.shape
     color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
     outputs = {

@@ -86,6 +86,20 @@ def _sets(topics: dict[str, str]) -> list[StereoTopics]:
     return found
 
 
+def _wrong_types(topics: dict[str, str]) -> str:
+    """'; but X is T, not Image' for stereo-named topics of another type (compressed images, mostly)."""
+    expected = {suffix: IMAGE_TYPE if "image" in suffix else INFO_TYPE for s in SUFFIXES.values() for suffix in s}
+    wrong = [
+        f"{name} is {kind}, not {want}"
+        for name, kind in sorted(topics.items())
+        for suffix, want in expected.items()
+        if name.endswith("/" + suffix) and kind != want
+    ]
+    if not wrong:
+        return ""
+    return f"; but {'; '.join(wrong)} (decompress compressed images first, e.g. image_transport republish)"
+
+
 def find_stereo_topics(topics: dict[str, str], namespace: str | None = None) -> StereoTopics:
     """The stereo set in a bag's {topic: msgtype}; raw images win over rectified ones in one namespace."""
     candidates = _sets(topics)
@@ -97,7 +111,7 @@ def find_stereo_topics(topics: dict[str, str], namespace: str | None = None) -> 
         msg = (
             f"the bag has no complete stereo topic set{where} (…/left/image_raw, …/left/camera_info, "
             f"…/right/image_raw, …/right/camera_info, or image_rect); "
-            f"it has: {', '.join(sorted(topics)) or 'no topics'}"
+            f"it has: {', '.join(sorted(topics)) or 'no topics'}{_wrong_types(topics)}"
         )
         raise BagError(msg)
     if len(namespaces) > 1:
@@ -154,19 +168,34 @@ class StereoBagReader:
         sync = Synchronizer(len(ROLES), self.policy.queue_size, self.policy.approximate, self.policy.tolerance_ns)
         self.stats.sync = sync.counters
         role_of = {name: i for i, name in enumerate(self.topics.names)}
-        connections = [c for c in self._reader.connections if c.topic in role_of]
-        try:
-            for connection, _, raw in self._reader.messages(connections=connections):
-                role = role_of[connection.topic]
-                message = deserialize(raw, connection.msgtype)
-                self._count_input(role)
-                for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
-                    self.stats.matched += 1
-                    yield StereoMessages(stamp, *msgs)
-        except ReaderError as exc:
-            msg = f"{self.path}: cannot read messages ({exc}); the bag may be truncated"
-            raise BagError(msg) from exc
+        for topic, message in self._messages(list(role_of)):
+            role = role_of[topic]
+            self._count_input(role)
+            for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
+                self.stats.matched += 1
+                yield StereoMessages(stamp, *msgs)
         self.stats.unmatched_at_end = sync.pending()
+
+    def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
+        """(topic, message) in recording order. Damage found while reading (a cut-off file, a corrupt
+        compressed chunk or database page, undecodable CDR) becomes one BagError naming the file,
+        whichever library noticed it: rosbags, zstd, apsw and the CDR decoder each raise their own."""
+        connections = [c for c in self._reader.connections if c.topic in topics]
+        messages = self._reader.messages(connections=connections)
+        while True:
+            try:
+                item = next(messages, None)
+                if item is None:
+                    return
+                connection, _, raw = item
+                message = deserialize(raw, connection.msgtype)
+            except Exception as exc:
+                msg = (
+                    f"{self.path}: cannot read messages ({type(exc).__name__}: {exc}); the bag is truncated or "
+                    "damaged: record it again, or repair a copy (mcap recover, ros2 bag reindex)"
+                )
+                raise BagError(msg) from exc
+            yield connection.topic, message
 
     def _count_input(self, role: int) -> None:
         if role == 0:
@@ -187,7 +216,10 @@ def open_reader(path: Path) -> Reader:
         reader = Reader(path)
         reader.open()
     except (ReaderError, OSError) as exc:
-        msg = f"{path}: not a readable rosbag2 ({exc}); pass a folder made by ros2 bag record or stereo-depth make-bag"
+        msg = (
+            f"{path}: not a readable rosbag2 ({exc}); pass a folder made by ros2 bag record or stereo-depth "
+            "make-bag (a recording cut short may be repaired on a copy with mcap recover or ros2 bag reindex)"
+        )
         raise BagError(msg) from exc
     return reader
 

@@ -7,6 +7,7 @@ so the final step is one rename) and deletes that folder on any error, Ctrl-C in
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -31,6 +32,9 @@ def check_output(path: Path, overwrite: bool) -> None:
     if not path.parent.is_dir():
         msg = f"{path.parent} is not a folder; create it first"
         raise BagError(msg)
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        msg = f"cannot write in {path.parent} (permission denied); choose an output folder you can write to"
+        raise BagError(msg)
 
 
 class BagWriter:
@@ -53,7 +57,11 @@ class BagWriter:
 
     def __enter__(self) -> BagWriter:
         check_output(self.path, self.overwrite)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
+        try:
+            self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
+        except OSError as exc:  # read-only file system, or a permission os.access did not foresee
+            msg = f"cannot write in {self.path.parent} ({exc.strerror}); choose an output folder you can write to"
+            raise BagError(msg) from exc
         writer = Writer(self._tmp / self.path.name, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
         if self.compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)

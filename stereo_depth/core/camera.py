@@ -17,6 +17,7 @@ import numpy as np
 from stereo_depth.errors import CalibrationError
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+OPENCV_D_SIZES = (4, 5, 8, 12, 14)  # coefficient counts cv2.initUndistortRectifyMap accepts
 
 
 def _matrix(values: object, shape: tuple[int, int]) -> np.ndarray:
@@ -110,6 +111,12 @@ def check_camera_info(info: CameraInfo, side: str) -> None:
     if info.distortion_model == "equidistant" and info.d.size != 4 and np.any(info.d):
         msg = f"{side} camera_info: equidistant distortion needs 4 coefficients, got {info.d.size}"
         raise CalibrationError(msg)
+    if info.distortion_model != "equidistant" and info.d.size not in OPENCV_D_SIZES and np.any(info.d):
+        msg = (
+            f"{side} camera_info: D has {info.d.size} coefficients but OpenCV takes 4, 5, 8, 12 or 14 "
+            "(plumb_bob: 5, rational_polynomial: 8); fix the calibration file"
+        )
+        raise CalibrationError(msg)
 
 
 @dataclass(eq=False)
@@ -197,6 +204,29 @@ class StereoCamera:
     def key(self) -> tuple[object, ...]:
         return (self.left.key(), self.right.key())
 
+    def shrunk(self, factor: int) -> StereoCamera:
+        """The rectified pair as seen in images shrunk by `factor` (cv2.resize, INTER_AREA): for calibration
+        that applies to the shrunk disparity, depth and points. Pixel centres map as x' = (x + 0.5) / factor
+        - 0.5, so P (and K = P[:3, :3], no distortion, R = I: the images are already rectified) scale about them.
+        """
+        shift = (1.0 / factor - 1.0) / 2.0
+        scale = np.array([[1.0 / factor, 0.0, shift], [0.0, 1.0 / factor, shift], [0.0, 0.0, 1.0]])
+
+        def side(info: CameraInfo) -> CameraInfo:
+            p = scale @ info.p
+            return CameraInfo.from_values(
+                info.width // factor,
+                info.height // factor,
+                p[:, :3],
+                np.zeros(5),
+                np.eye(3),
+                p,
+                "plumb_bob",
+                info.frame_id,
+            )
+
+        return StereoCamera(side(self.left), side(self.right))
+
     def needs_rectification(self, side: str) -> bool:
         """False only when remapping would be the identity (no distortion, R = I, K = P[:3,:3])."""
         return needs_rectification(self.left if side == "left" else self.right)
@@ -232,8 +262,11 @@ def build_rectification_maps(info: CameraInfo) -> tuple[np.ndarray, np.ndarray]:
     """Fixed-point undistort+rectify maps (CV_16SC2) for one camera, into its P's image plane."""
     size = (info.width, info.height)
     new_k = info.p[:, :3]
+    distorted = bool(np.any(info.d))  # all-zero D of any length (or none) means no distortion
     if info.distortion_model == "equidistant":
-        map1, map2 = cv2.fisheye.initUndistortRectifyMap(info.k, info.d[:4], info.r, new_k, size, cv2.CV_16SC2)
+        d = info.d[:4] if distorted else np.zeros(4)
+        map1, map2 = cv2.fisheye.initUndistortRectifyMap(info.k, d, info.r, new_k, size, cv2.CV_16SC2)
     else:
-        map1, map2 = cv2.initUndistortRectifyMap(info.k, info.d, info.r, new_k, size, cv2.CV_16SC2)
+        d = info.d if distorted else np.zeros(5)
+        map1, map2 = cv2.initUndistortRectifyMap(info.k, d, info.r, new_k, size, cv2.CV_16SC2)
     return map1, map2

@@ -80,6 +80,13 @@ def create_sgbm(params: StereoParams) -> Matcher:
     return OpenCVMatcher(sgbm, params.min_disparity)
 
 
+def min_image_size(params: StereoParams) -> tuple[int, int]:
+    """(width, height) below which a matcher cannot work: StereoSGBM crashes the process on narrower
+    images and StereoBM raises on lower ones, so the pipeline refuses them first (measured, OpenCV 5)."""
+    width = max(params.min_disparity, 0) + params.disparity_range + params.correlation_window_size
+    return width, params.correlation_window_size + 1
+
+
 def valid_window(width: int, height: int, params: StereoParams) -> tuple[int, int, int, int]:
     """(x, y, width, height) of the pixels a window matcher can fill: DisparityImage.valid_window.
 

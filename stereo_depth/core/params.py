@@ -15,6 +15,7 @@ from typing import Any
 from stereo_depth.errors import ParameterError
 
 SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
+OUTPUT_SIZES = ("full", "processed")  # downsample_output choices
 
 
 def _spec(description: str, lo: float | None = None, hi: float | None = None, step: float = 0) -> dict[str, Any]:
@@ -79,6 +80,13 @@ class StereoParams:
     downsample: int = field(
         default=1, metadata=_spec("Match at 1/downsample resolution (1, 2 or 4) for slow CPUs", 1, 4, 1)
     )
+    downsample_output: str = field(
+        default="full",
+        metadata=_spec(
+            "With downsample > 1: full (disparity, depth, points2, image_rect at the input size) or processed "
+            "(at the matched size, focal length and principal point scaled with it: 1/downsample^2 the points)"
+        ),
+    )
 
     def validate(self) -> StereoParams:
         """Refuse values that OpenCV would reject or silently change, with the reason."""
@@ -100,7 +108,15 @@ class StereoParams:
             ),
             (self.prefilter_size % 2 == 1, f"prefilter_size {self.prefilter_size} must be odd"),
             (self.P2 > self.P1, f"P2 ({self.P2}) must be greater than P1 ({self.P1})"),
+            (
+                self.matcher != "census_sgm" or self.min_disparity >= 0,
+                f"min_disparity {self.min_disparity} must be >= 0 for census_sgm (use sgbm for negative ones)",
+            ),
             (self.downsample in (1, 2, 4), f"downsample {self.downsample} must be 1, 2 or 4"),
+            (
+                self.downsample_output in OUTPUT_SIZES,
+                f"downsample_output '{self.downsample_output}' must be one of {', '.join(OUTPUT_SIZES)}",
+            ),
             (self.sgbm_mode in SGBM_MODES, f"sgbm_mode {self.sgbm_mode} must be one of {sorted(SGBM_MODES)}"),
         ]
         for f in dataclasses.fields(self):
@@ -149,9 +165,11 @@ PROFILES: dict[str, dict[str, Any]] = {
         "matcher": "census_sgm",
         "correlation_window_size": 1,
         "P1": 20.0,
-        "P2": 300.0,
+        "P2": 200.0,
         "uniqueness_ratio": 3.0,
         "disp12_max_diff": 1,
+        "speckle_range": 1,
+        "confidence_threshold": 0.05,
     },
 }
 

@@ -17,7 +17,7 @@ import numpy as np
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
-from stereo_depth.core.matching import Matcher, MatchResult, create_matcher
+from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
 from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.errors import ImageError
 
@@ -47,10 +47,12 @@ def to_grey8(image: np.ndarray, scale: float) -> np.ndarray:
 
 
 def _grey_scale(left: np.ndarray, right: np.ndarray) -> float:
-    """One 16-bit to 8-bit scale for both images, so the pair stays photometrically consistent."""
-    if left.dtype == np.uint8:
+    """One 16-bit to 8-bit scale (common peak -> 255) for the pair's 16-bit images, so the pair stays
+    photometrically consistent; an 8-bit partner (cameras of different kinds) is used as it is."""
+    wide = [image for image in (left, right) if image.dtype != np.uint8]
+    if not wide:
         return 1.0
-    peak = max(int(left.max(initial=0)), int(right.max(initial=0)), 1)
+    peak = max(*(int(image.max(initial=0)) for image in wide), 1)
     return 255.0 / peak
 
 
@@ -66,6 +68,19 @@ def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
         raise ImageError(msg)
 
 
+def _check_matchable(image: np.ndarray, params: StereoParams) -> None:
+    """Refuse what the matcher cannot take (StereoSGBM would crash the process, not raise)."""
+    min_width, min_height = min_image_size(params)
+    height, width = image.shape[:2]
+    if width < min_width or height < min_height:
+        msg = (
+            f"image of {width}x{height} (after downsample) is too small to match: it needs at least "
+            f"{min_width}x{min_height} (min_disparity + disparity_range + correlation_window_size wide); "
+            "use larger images or a smaller disparity_range"
+        )
+        raise ImageError(msg)
+
+
 class StereoPipeline:
     """Reusable per-stream processor; not thread-safe for concurrent `process` calls."""
 
@@ -73,6 +88,7 @@ class StereoPipeline:
         self._state: tuple[StereoParams, Matcher] = self._build(params or make_params())
         self._camera: StereoCamera | None = None
         self._rays: dict[tuple[object, ...], Rays] = {}
+        self._small_camera: tuple[tuple[object, ...], StereoCamera] | None = None
         self.calibrations_built = 0
 
     @staticmethod
@@ -129,13 +145,18 @@ class StereoPipeline:
         t1 = time.perf_counter()
         factor = params.downsample
         grey_small, grey_r_small = _shrink(grey_l, grey_r, factor)
+        _check_matchable(grey_small, _scaled(params, factor))
         match = matcher.compute(grey_small, grey_r_small)
         t2 = time.perf_counter()
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
         if params.fill_holes:
             match.disparity = fill_holes(match.disparity, grey_small, radius=params.hole_fill_radius)
-        if factor > 1:
+        if factor > 1 and params.downsample_output == "processed":
+            camera = self._shrunk(camera, factor) if camera is not None else None
+            grey_l, grey_r = grey_small, grey_r_small
+            color = _shrink_color(color, grey_small.shape) if color is not None else None
+        elif factor > 1:
             _enlarge(match, grey_l.shape, factor)
         disparity = match.disparity
         t3 = time.perf_counter()
@@ -148,6 +169,13 @@ class StereoPipeline:
         for name, start, end in zip(STAGES, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
             timings[name] = (end - start) * 1000.0
         return StereoResult(camera, grey_l, grey_r, color, disparity, match.confidence, depth, points, timings)
+
+    def _shrunk(self, camera: StereoCamera, factor: int) -> StereoCamera:
+        """The calibration of processed-size outputs, built once per calibration and factor."""
+        key = (camera.key(), factor)
+        if self._small_camera is None or self._small_camera[0] != key:
+            self._small_camera = (key, camera.shrunk(factor))
+        return self._small_camera[1]
 
     def _rays_for(self, camera: StereoCamera) -> Rays:
         key = camera.key()
@@ -167,6 +195,18 @@ def _scaled(params: StereoParams, factor: int) -> StereoParams:
         min_disparity=params.min_disparity // factor,
         downsample=1,
     )
+
+
+def output_params(params: StereoParams) -> StereoParams:
+    """The parameters that describe the published disparity (DisparityImage's range, valid window, delta_d):
+    at the processed size of `downsample_output: processed` those of the shrunk matcher, else `params`."""
+    if params.downsample > 1 and params.downsample_output == "processed":
+        return _scaled(params, params.downsample)
+    return params
+
+
+def _shrink_color(color: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    return cv2.resize(color, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
 
 
 def _shrink(left: np.ndarray, right: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:

@@ -28,14 +28,12 @@ class DisparityNode(StereoIONode):
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert self.pipeline is not None and settings.stereo is not None
-        left_msg, left_info, right_msg, right_info = messages
+        left_msg = messages[0]
         start = time.perf_counter()
-        left = self.read_image(0, left_msg, settings.options)
-        right = self.read_image(2, right_msg, settings.options)
-        camera = self.stereo_camera(1, left_info, 3, right_info)
+        left, right, camera = self.read_stereo_pair(messages, settings.options)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        result = self.pipeline.process(left, right, camera, rectified=True, want_points=False)
+        result = self.run_pipeline(left, right, camera, rectified=True, want_points=False)
         start = time.perf_counter()
         self._disparity.publish(disparity_message(left_msg.header, result.disparity, camera, settings.stereo))
         timed(stages, "publish", start)

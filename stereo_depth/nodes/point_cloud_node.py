@@ -16,7 +16,7 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
-from stereo_depth.messages import disparity_from_msg
+from stereo_depth.messages import CloudBuffer, disparity_from_msg
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, run_node, timed
 
@@ -35,6 +35,7 @@ class PointCloudNode(StereoIONode):
         self.pipeline = StereoPipeline()  # only its calibration cache is used here
         self._rays: tuple[tuple[object, ...], Rays] | None = None
         self._points = self.output(PointCloud2, "points2")
+        self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         image_msg, left_info, right_info, disparity_msg = messages
@@ -49,7 +50,7 @@ class PointCloudNode(StereoIONode):
         points = depth_to_points(disparity_to_depth(disparity, camera, offset_adjusted=True), self._rays_for(camera))
         timed(stages, "points", start)
         start = time.perf_counter()
-        self._points.publish(cloud_message(image_msg.header, points, image, settings.options))
+        self._points.publish(cloud_message(image_msg.header, points, image, settings.options, self._cloud_buffer))
         timed(stages, "publish", start)
         return stages
 

@@ -47,16 +47,18 @@ class RectifyNode(StereoIONode):
         return stages
 
     def _maps_for(self, info: Calibration, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray] | None:
-        """Cached maps for this calibration; None when rectifying would not move a pixel."""
-        if self._maps is None or self._maps[0] != info:
-            check_camera_info(info, self.topics[1])
-            self._maps = (info, build_rectification_maps(info) if needs_rectification(info) else None)
+        """Cached maps for this calibration; None when rectifying would not move a pixel.
+
+        The size is checked first: maps for an absurd camera_info size would exhaust memory."""
         if shape[:2] != (info.height, info.width):
             msg = (
                 f"{self.topics[0]}: image is {shape[1]}x{shape[0]} but {self.topics[1]} says "
                 f"{info.width}x{info.height}; the calibration does not belong to this camera mode"
             )
             raise CalibrationError(msg)
+        if self._maps is None or self._maps[0] != info:
+            check_camera_info(info, self.topics[1])
+            self._maps = (info, build_rectification_maps(info) if needs_rectification(info) else None)
         return self._maps[1]
 
 

@@ -17,7 +17,7 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
-from stereo_depth.messages import array_to_image, stamp_to_ns
+from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, disparity_message, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -50,6 +50,7 @@ class StereoNode(StereoIONode):
         self._disparity = self.output(DisparityImage, "disparity")
         self._depth = self.output(Image, "depth")
         self._points = self.output(PointCloud2, "points2")
+        self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
         self._confidence = self.output(Image, "confidence")
         # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
         self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
@@ -59,16 +60,14 @@ class StereoNode(StereoIONode):
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert self.pipeline is not None and settings.stereo is not None
-        left_msg, left_info, right_msg, right_info = messages
+        left_msg = messages[0]
         options = settings.options
         start = time.perf_counter()
-        left = self.read_image(0, left_msg, options)
-        right = self.read_image(2, right_msg, options)
-        camera = self.stereo_camera(1, left_info, 3, right_info)
+        left, right, camera = self.read_stereo_pair(messages, options)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         want_points = self.wanted(self._points, options.publish_points)
-        result = self.pipeline.process(left, right, camera, want_points=want_points)
+        result = self.run_pipeline(left, right, camera, want_points=want_points)
         start = time.perf_counter()
         self._publish(left_msg.header, result, settings, options)
         timed(stages, "publish", start)
@@ -110,7 +109,7 @@ class StereoNode(StereoIONode):
             self._confidence.publish(array_to_image(RCLPY_TYPES, header, result.confidence, "32FC1"))
         if result.points is not None:
             color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-            self._points.publish(cloud_message(header, result.points, color, options))
+            self._points.publish(cloud_message(header, result.points, color, options, self._cloud_buffer))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,6 +18,7 @@ from stereo_depth.core.calibration_check import CalibrationCheck
 from stereo_depth.core.pipeline import STAGES
 
 WINDOW = 50  # messages per input used to estimate rates
+SILENT_AFTER_S = 3.0  # an input quiet this long while the others arrive is reported by name
 RECENT_FRAMES = 30  # frames averaged for stage times and latency
 
 
@@ -75,10 +76,50 @@ class NodeDiagnostics:
         self.last_error = ""
         self._last_error_at = 0.0
         self._calibration: tuple[int, CalibrationCheck] | None = None  # (stamp checked, result)
+        self._last_arrival: dict[str, float] = {}
+        self.stale = 0  # messages whose stamp repeated or went back a little (dropped)
+        self.time_jumps = 0  # stamps went back by more than the synchronizer's jump: pairing restarted
+        self.calibrations = 0  # calibrations loaded (rectification maps built); grows only on a change
 
     def input_received(self, topic: str, stamp_ns: int) -> None:
+        now = time.monotonic()
         with self._lock:
-            self.inputs[topic].add(stamp_ns, time.monotonic())
+            self.inputs[topic].add(stamp_ns, now)
+            self._last_arrival[topic] = now
+
+    def add_stale(self) -> None:
+        with self._lock:
+            self.stale += 1
+
+    def add_time_jump(self) -> None:
+        with self._lock:
+            self.time_jumps += 1
+
+    def calibrations_loaded(self, count: int) -> None:
+        with self._lock:
+            self.calibrations = count
+
+    def silent_inputs(self) -> str:
+        """'' while all inputs arrive, else which ones are quiet while others arrive, and the fix."""
+        with self._lock:
+            return self._silence(time.monotonic())
+
+    def _silence(self, now: float) -> str:
+        """One camera down, camera_info never published or a topic remapped wrong all look like this."""
+        arriving = sorted(t for t, at in self._last_arrival.items() if now - at < SILENT_AFTER_S)
+        if not arriving:
+            return ""  # nothing is published at all: nothing to pair, nothing to complain about
+        quiet = [
+            f"{t} (for {now - self._last_arrival[t]:.0f} s)" if t in self._last_arrival else f"{t} (never)"
+            for t in self.inputs
+            if t not in arriving
+        ]
+        if not quiet:
+            return ""
+        return (
+            f"no messages on {', '.join(quiet)} while {', '.join(arriving)} arrive: nothing can be paired; "
+            "check that camera's driver and the topic remapping (ros2 topic hz)"
+        )
 
     def input_lost(self, topic: str, count: int) -> None:
         with self._lock:
@@ -162,12 +203,19 @@ class NodeDiagnostics:
         values.append(("frames processed", str(self.processed)))
         values.append(("dropped frames", str(self.dropped)))
         values.append(("unmatched input messages", str(self.unmatched)))
+        values.append(("stale or repeated stamps", str(self.stale)))
+        values.append(("time jumps (pairing restarted)", str(self.time_jumps)))
+        values.append(("calibrations loaded", str(self.calibrations)))
+        values.append(("silent inputs", self._silence(now) or "none"))
         values.append(("last error", self.last_error or "none"))
         return values
 
     def _level(self, now: float) -> tuple[bytes, str]:
         if self.last_error and now - self._last_error_at <= 5.0:
             return DiagnosticStatus.WARN, f"frames skipped: {self.last_error}"
+        silence = self._silence(now)
+        if silence:
+            return DiagnosticStatus.WARN, silence
         lossy = [t for t, m in self.inputs.items() if m.missing()]
         if lossy:
             return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}"

@@ -75,6 +75,16 @@ class NodeOptions:
     calibration_check_every_n_frames: int = field(
         default=30, metadata=_spec("Run the calibration check on one frame in this many", 1, 100000, 1)
     )
+    max_waiting_frames: int = field(
+        default=1,
+        metadata=_spec(
+            "Complete input sets kept while one is processed; one more drops the oldest (counted in "
+            "diagnostics). 1: always the newest, lowest latency; more: no frame lost to a busy machine's hiccups",
+            1,
+            100,
+            1,
+        ),
+    )
     max_image_pixels: int = field(
         default=DEFAULT_MAX_PIXELS,
         metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
@@ -106,7 +116,7 @@ class NodeOptions:
 
 
 SYNC_OPTIONS = ("queue_size", "approximate_sync", "approximate_sync_tolerance_seconds")
-INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_image_pixels")
+INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_waiting_frames", "max_image_pixels")
 CLOUD_OPTIONS = ("use_color", "avoid_point_cloud_padding")
 
 

@@ -1,8 +1,10 @@
-"""What the four nodes share: inputs -> synchronizer -> one-slot worker -> outputs, plus `main()`.
+"""What the four nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
 
 Subscription callbacks only stamp, count and pair messages; the work runs on one worker thread that
-always takes the newest complete set. When frames arrive faster than they can be processed the
-older waiting set is replaced (and counted), so latency stays bounded instead of a backlog growing.
+takes complete sets oldest first from a short queue (`max_waiting_frames`). When frames arrive faster
+than they can be processed the oldest waiting set is dropped (and counted), so latency stays bounded
+instead of a backlog growing; the few waiting places absorb a busy machine's scheduling hiccups, which
+a single slot turns into lost frames even at a rate the node easily sustains.
 OpenCV releases the GIL, so the executor keeps receiving while a frame is processed.
 """
 
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any, TypeVar
@@ -18,6 +21,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
@@ -25,9 +29,10 @@ from rclpy.signals import SignalHandlerOptions
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.errors import StereoDepthError
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
+from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
 from stereo_depth.messages import (
+    CloudBuffer,
     camera_info_from_msg,
     disparity_to_msg,
     image_to_pipeline,
@@ -37,6 +42,7 @@ from stereo_depth.messages import (
 )
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
+from stereo_depth.ros.problems import ProblemLog
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import Synchronizer
@@ -47,39 +53,42 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 
 
 class LatestWorker:
-    """Runs jobs on one thread; a job submitted while another waits replaces it (`on_replaced`)."""
+    """Runs jobs on one thread, oldest first; at most `capacity` wait, and one more replaces the oldest
+    waiting job (`on_replaced`). Capacity 1: always the newest job."""
 
-    def __init__(self, run: Callable[[Any], None], on_replaced: Callable[[], None]) -> None:
+    def __init__(self, run: Callable[[Any], None], on_replaced: Callable[[], None], capacity: int = 1) -> None:
         self._run = run
         self._on_replaced = on_replaced
+        self.capacity = capacity  # read at each submit: a parameter change applies to the next job
         self._cond = threading.Condition()
-        self._pending: Any = None
+        self._pending: deque[Any] = deque()
         self._stopped = False
         self._thread = threading.Thread(target=self._loop, name="stereo_depth-worker", daemon=True)
         self._thread.start()
 
     def submit(self, job: Any) -> None:
         with self._cond:
-            if self._pending is not None:
+            while len(self._pending) >= max(self.capacity, 1):
+                self._pending.popleft()
                 self._on_replaced()
-            self._pending = job
+            self._pending.append(job)
             self._cond.notify()
 
     def stop(self) -> None:
-        """Let the running job finish, discard the waiting one, end the thread."""
+        """Let the running job finish, discard the waiting ones, end the thread."""
         with self._cond:
             self._stopped = True
-            self._pending = None
+            self._pending.clear()
             self._cond.notify()
         self._thread.join(timeout=30.0)
 
     def _loop(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._stopped or self._pending is not None)
+                self._cond.wait_for(lambda: self._stopped or bool(self._pending))
                 if self._stopped:
                     return
-                job, self._pending = self._pending, None
+                job = self._pending.popleft()
             self._run(job)
 
 
@@ -94,6 +103,7 @@ class StereoIONode(Node):
         super().__init__(name, **kwargs)
         self.topics = [self.resolve_topic_name(topic) for topic, _ in self.INPUTS]
         self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
+        self.problems = ProblemLog(self.get_logger(), self.diagnostics)
         self.parameters = NodeParameters(
             self, self.OPTIONS, with_stereo=self.WITH_STEREO, on_change=self._settings_changed
         )
@@ -115,7 +125,9 @@ class StereoIONode(Node):
             for index, (topic, msg_type) in enumerate(self.INPUTS)
         ]
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self._worker = LatestWorker(self._run_frame, partial(self.diagnostics.add_dropped, 1))
+        self._worker = LatestWorker(
+            self._run_frame, partial(self.diagnostics.add_dropped, 1), settings.options.max_waiting_frames
+        )
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
@@ -150,11 +162,50 @@ class StereoIONode(Node):
         assert self.pipeline is not None
         left = self.read_input(left_index, camera_info_from_msg, left_msg)
         right = self.read_input(right_index, camera_info_from_msg, right_msg)
+        topics = f"left = {self.topics[left_index]}, right = {self.topics[right_index]}"
+        loaded = self.pipeline.calibrations_built
         try:
-            return self.pipeline.camera_for(left, right)
+            camera = self.pipeline.camera_for(left, right)
         except StereoDepthError as exc:
-            topics = f"left = {self.topics[left_index]}, right = {self.topics[right_index]}"
             raise type(exc)(f"{exc} ({topics})") from exc
+        if self.pipeline.calibrations_built != loaded:
+            self.diagnostics.calibrations_loaded(self.pipeline.calibrations_built)
+            self.problems.info(
+                f"calibration {'changed' if loaded else 'received'} ({topics}): {camera.width}x{camera.height}, "
+                f"fx {camera.fx:.1f} px, baseline {camera.baseline:.4f} m; rectification maps rebuilt",
+                kind=f"calibration {hash(camera.key())}",
+            )
+        return camera
+
+    def run_pipeline(self, left: Any, right: Any, camera: StereoCamera, **options: Any) -> StereoResult:
+        """`pipeline.process`, with both image topics named in any error it raises."""
+        assert self.pipeline is not None
+        try:
+            return self.pipeline.process(left, right, camera, **options)
+        except StereoDepthError as exc:
+            raise type(exc)(f"{self.topics[0]} and {self.topics[2]}: {exc}") from exc
+
+    def read_stereo_pair(self, messages: tuple[Any, ...], options: NodeOptions) -> tuple[Any, Any, StereoCamera]:
+        """(left, right, camera) from (left image, left info, right image, right info), sizes checked
+        here so that the error names the topics, not "left" and "right"."""
+        left_msg, left_info, right_msg, right_info = messages
+        left = self.read_image(0, left_msg, options)
+        right = self.read_image(2, right_msg, options)
+        camera = self.stereo_camera(1, left_info, 3, right_info)
+        (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
+        if (lh, lw) != (rh, rw):
+            msg = (
+                f"{self.topics[0]} is {lw}x{lh} but {self.topics[2]} is {rw}x{rh}; both cameras must "
+                "stream one resolution (check each driver's mode, binning and ROI)"
+            )
+            raise ImageError(msg)
+        if (lw, lh) != (camera.width, camera.height):
+            msg = (
+                f"{self.topics[0]} and {self.topics[2]} are {lw}x{lh} but {self.topics[1]} and {self.topics[3]} "
+                f"say {camera.width}x{camera.height}; publish the calibration of this camera mode"
+            )
+            raise CalibrationError(msg)
+        return left, right, camera
 
     # ------------------------------------------------------------ internals
 
@@ -168,18 +219,47 @@ class StereoIONode(Node):
 
     def _on_message(self, index: int, msg: Any) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input_received(self.topics[index], stamp)
+        topic = self.topics[index]
+        if stamp == 0:
+            self.problems.skipped(
+                f"{topic}: header.stamp is zero, message skipped; the driver must stamp every image and "
+                "camera_info with its capture time, or left and right cannot be paired"
+            )
+            return
+        self.diagnostics.input_received(topic, stamp)
         with self._sync_lock:
-            before = self._sync.counters.dropped + self._sync.counters.stale
+            counters = self._sync.counters
+            stale, jumps = counters.stale, counters.time_jumps
+            before = counters.dropped + counters.stale
             sets = self._sync.add(index, stamp, msg)
-            self.diagnostics.add_unmatched(self._sync.counters.dropped + self._sync.counters.stale - before)
+            self.diagnostics.add_unmatched(counters.dropped + counters.stale - before)
+            stale, jumps = counters.stale - stale, counters.time_jumps - jumps
+        if stale:
+            self._stale_stamp(topic, stamp)
+        if jumps:
+            self._time_jump(topic, stamp)
         for stamp_ns, messages in sets:
             self._worker.submit((stamp_ns, messages))
+
+    def _stale_stamp(self, topic: str, stamp_ns: int) -> None:
+        self.diagnostics.add_stale()
+        self.problems.skipped(
+            f"{topic}: stamp {stamp_ns / 1e9:.6f} s is not newer than the last paired set (repeated, or "
+            "back by less than 1 s), message dropped; each frame needs a new, increasing stamp"
+        )
+
+    def _time_jump(self, topic: str, stamp_ns: int) -> None:
+        self.diagnostics.add_time_jump()
+        self.problems.info(
+            f"{topic}: stamps jumped back to {stamp_ns / 1e9:.3f} s (a looping bag or a restarted driver); "
+            "pairing restarted from there"
+        )
 
     def _settings_changed(self, settings: Settings) -> None:
         """Runs after a successful parameter change; the worker picks the new set up on its next frame."""
         old, new = self._options, settings.options
         self._options = new
+        self._worker.capacity = new.max_waiting_frames
         if any(getattr(old, n) != getattr(new, n) for n in ("queue_size", "approximate_sync", "tolerance_ns")):
             with self._sync_lock:
                 self._sync.reset()
@@ -201,8 +281,7 @@ class StereoIONode(Node):
                 self._use_params(self.pipeline, settings.stereo)
             stage_ms = self.process(messages, settings)
         except StereoDepthError as exc:
-            self.diagnostics.error(str(exc))
-            self.get_logger().warning(f"frame skipped: {exc}", throttle_duration_sec=5.0)
+            self.problems.skipped(str(exc))
             return
         except Exception as exc:  # a bug, not bad input: say so, keep serving the next frames
             if not self.context.ok():
@@ -220,6 +299,9 @@ class StereoIONode(Node):
             pipeline.set_params(params)
 
     def _publish_diagnostics(self) -> None:
+        silence = self.diagnostics.silent_inputs()
+        if silence:
+            self.problems.warn(silence)
         header = make_header(RCLPY_TYPES, self.get_clock().now().nanoseconds, "")
         self._diagnostics_pub.publish(self.diagnostics.report(header))
 
@@ -230,6 +312,7 @@ class StereoIONode(Node):
 
 def disparity_message(header: Any, disparity: Any, camera: StereoCamera, params: StereoParams) -> Any:
     """DisparityImage with the matcher's real valid window and resolution (1/16 px per downsample step)."""
+    params = output_params(params)
     height, width = disparity.shape
     return disparity_to_msg(
         RCLPY_TYPES,
@@ -243,10 +326,15 @@ def disparity_message(header: Any, disparity: Any, camera: StereoCamera, params:
     )
 
 
-def cloud_message(header: Any, points: Any, image: Any, options: NodeOptions) -> Any:
-    """Organized PointCloud2; colour from the rectified left image (grey when the camera is mono)."""
+def cloud_message(header: Any, points: Any, image: Any, options: NodeOptions, buffer: CloudBuffer) -> Any:
+    """Organized PointCloud2; colour from the rectified left image (grey when the camera is mono).
+
+    `buffer`: the publisher's own CloudBuffer; publish the message before the next call reuses it.
+    """
     color = image if options.use_color else None
-    return points_to_cloud(RCLPY_TYPES, header, points, color, avoid_padding=options.avoid_point_cloud_padding)
+    return points_to_cloud(
+        RCLPY_TYPES, header, points, color, avoid_padding=options.avoid_point_cloud_padding, buffer=buffer
+    )
 
 
 def timed(stages: dict[str, float], name: str, start: float) -> None:
@@ -255,8 +343,14 @@ def timed(stages: dict[str, float], name: str, start: float) -> None:
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """rclpy Jazzy's main(). SIGINT / SIGTERM raise SystemExit(0) (see stereo_depth.nodes), so the
-    `finally` below stops the worker and destroys the node before the process ends with 0."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    `finally` below stops the worker and destroys the node before the process ends with 0.
+    A node that cannot start (bad --ros-args, --params-file or parameter value) says why in one
+    line and exits with 2, rather than run with part of its configuration."""
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as exc:  # unreadable --params-file, malformed --ros-args
+        rclpy.logging.get_logger("stereo_depth").error(f"cannot start: {_rcl_reason(exc)}")
+        return 2
     node: Node | None = None
     code = 0
     try:
@@ -272,3 +366,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def _rcl_reason(exc: Exception) -> str:
+    """rcl's message on one line, without the C source locations it appends (", at file.c:123")."""
+    return " ".join(str(exc).split(", at /")[0].split())
