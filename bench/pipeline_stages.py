@@ -29,7 +29,7 @@ from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.euroc import stereo_camera_infos
 from stereo_depth.messages import CloudBuffer, array_to_image, image_to_pipeline, make_header, points_to_cloud
-from stereo_depth.ros.stereo_io import disparity_message
+from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.types import RCLPY_TYPES
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
@@ -66,7 +66,7 @@ def encode(result: StereoResult, params: StereoParams, buffer: CloudBuffer) -> N
     """The two messages stereo_node builds for a disparity + points2 subscriber (publish() not included)."""
     assert result.camera is not None and result.points is not None
     header = make_header(RCLPY_TYPES, 1, "left")
-    disparity_message(header, result.disparity, result.camera, params)
+    disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, params)
     points_to_cloud(RCLPY_TYPES, header, result.points, result.left_rect, buffer=buffer)
 
 

@@ -20,18 +20,17 @@ from stereo_depth.bag.export import disparity_picture, write_ply
 from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
-from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult, output_params
+from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.errors import StereoDepthError
 from stereo_depth.messages import (
     MessageTypes,
     array_to_image,
     camera_info_from_msg,
-    disparity_to_msg,
     image_to_pipeline,
     points_to_cloud,
 )
+from stereo_depth.outputs import disparity_message
 
 
 @dataclass
@@ -85,20 +84,9 @@ class ProcessSummary:
 def frame_outputs(types: MessageTypes, header: Any, result: StereoResult, params: StereoParams) -> dict[str, Any]:
     """The messages stereo_node publishes for one frame (with its default options), by output name."""
     assert result.camera is not None and result.depth is not None and result.points is not None
-    params = output_params(params)  # the disparity's own size and range (downsample_output)
-    height, width = result.disparity.shape
     color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
     outputs = {
-        "disparity": disparity_to_msg(
-            types,
-            header,
-            result.disparity,
-            result.camera,
-            params.min_disparity,
-            params.disparity_range,
-            valid_window(width, height, params),
-            delta_d=params.downsample / 16.0,
-        ),
+        "disparity": disparity_message(types, header, result.disparity, result.camera, params),
         "depth": array_to_image(types, header, result.depth, "32FC1"),
         "points2": points_to_cloud(types, header, result.points, color),
         "left/image_rect": array_to_image(types, header, result.left_rect),

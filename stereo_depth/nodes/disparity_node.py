@@ -8,8 +8,10 @@ from typing import Any
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
+from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
-from stereo_depth.ros.stereo_io import StereoIONode, disparity_message, run_node, timed
+from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
+from stereo_depth.ros.types import RCLPY_TYPES
 
 
 class DisparityNode(StereoIONode):
@@ -35,7 +37,8 @@ class DisparityNode(StereoIONode):
         timed(stages, "decode", start)
         result = self.run_pipeline(left, right, camera, rectified=True, want_points=False)
         start = time.perf_counter()
-        self._disparity.publish(disparity_message(left_msg.header, result.disparity, camera, settings.stereo))
+        message = disparity_message(RCLPY_TYPES, left_msg.header, result.disparity, camera, settings.stereo)
+        self._disparity.publish(message)
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}
 

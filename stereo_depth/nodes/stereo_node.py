@@ -18,8 +18,9 @@ from stereo_msgs.msg import DisparityImage
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
+from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
-from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, disparity_message, run_node, timed
+from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 
 
@@ -102,7 +103,8 @@ class StereoNode(StereoIONode):
         if result.left_rect_color is not None and self.wanted(self._rect_color, options.publish_rectified):
             self._rect_color.publish(array_to_image(RCLPY_TYPES, header, result.left_rect_color))
         if self.wanted(self._disparity, options.publish_disparity):
-            self._disparity.publish(disparity_message(header, result.disparity, result.camera, settings.stereo))
+            disparity = disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, settings.stereo)
+            self._disparity.publish(disparity)
         if result.depth is not None and self.wanted(self._depth, options.publish_depth):
             self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
         if result.confidence is not None and self.wanted(self._confidence, options.publish_confidence):

@@ -27,14 +27,12 @@ from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
 from stereo_depth.messages import (
     CloudBuffer,
     camera_info_from_msg,
-    disparity_to_msg,
     image_to_pipeline,
     make_header,
     points_to_cloud,
@@ -308,22 +306,6 @@ class StereoIONode(Node):
     def destroy_node(self) -> None:
         self._worker.stop()
         super().destroy_node()
-
-
-def disparity_message(header: Any, disparity: Any, camera: StereoCamera, params: StereoParams) -> Any:
-    """DisparityImage with the matcher's real valid window and resolution (1/16 px per downsample step)."""
-    params = output_params(params)
-    height, width = disparity.shape
-    return disparity_to_msg(
-        RCLPY_TYPES,
-        header,
-        disparity,
-        camera,
-        params.min_disparity,
-        params.disparity_range,
-        valid_window(width, height, params),
-        delta_d=params.downsample / 16.0,
-    )
 
 
 def cloud_message(header: Any, points: Any, image: Any, options: NodeOptions, buffer: CloudBuffer) -> Any:
