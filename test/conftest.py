@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -22,6 +24,16 @@ def ros_env() -> dict[str, str]:
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", env["ROS_DOMAIN_ID"])
     return env
+
+
+@pytest.fixture(scope="module")
+def ros(ros_env: dict[str, str]) -> Iterator[Any]:
+    """A node in the test process to publish, collect and set parameters over real DDS."""
+    from ros_helpers import RosHarness  # rclpy only for the modules that talk to nodes
+
+    harness = RosHarness()
+    yield harness
+    harness.close()
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -136,13 +136,6 @@ class FaultyNode:
 
 
 @pytest.fixture(scope="module")
-def ros(ros_env: dict[str, str]) -> Iterator[RosHarness]:
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
 def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultyNode]:
     process = NodeProcess("stereo_node", NS, ros_env, tmp_path_factory.mktemp("faults"))
     ros.wait_for_nodes([process])

@@ -26,13 +26,6 @@ WARM_UP_FRAMES = 100
 
 
 @pytest.fixture(scope="module")
-def ros(ros_env: dict[str, str]) -> Iterator[RosHarness]:
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
 def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[NodeProcess]:
     process = NodeProcess("stereo_node", NS, ros_env, tmp_path_factory.mktemp("long_run"), ["-p", "profile:=fast"])
     ros.wait_for_nodes([process])

@@ -106,13 +106,6 @@ def euroc() -> Pair:
 
 
 @pytest.fixture(scope="module")
-def ros(ros_env: dict[str, str]) -> Iterator[RosHarness]:
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
 def nodes(
     ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[dict[str, NodeProcess]]:

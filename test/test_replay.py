@@ -44,13 +44,6 @@ def large_images_env(ros_env: dict[str, str]) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def ros(ros_env: dict[str, str]) -> Iterator[RosHarness]:
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
 def stereo_node(
     ros: RosHarness, large_images_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[NodeProcess]:
