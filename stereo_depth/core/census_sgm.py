@@ -273,7 +273,7 @@ def _first_step(
 
 
 @_kernel()
-def _range_min(row: np.ndarray, lo: int, hi: int) -> np.uint16:
+def _range_min(row: np.ndarray, lo: int | np.integer, hi: int | np.integer) -> np.uint16:
     """min(row[lo:hi]) as a vectorised reduction (0xFFFF when empty)."""
     m = np.uint16(0xFFFF)
     for k in range(max(lo, 0), hi):
@@ -347,7 +347,7 @@ def _select(
 
 @_kernel(parallel=True)
 def _close_gaps(
-    disp: np.ndarray, invalid: float, max_gap: int, tol: np.float32, occ_margin: int, border_margin: int
+    disp: np.ndarray, invalid: np.float32, max_gap: int, tol: np.float32, occ_margin: int, border_margin: int
 ) -> np.ndarray:
     """Fill the hole runs of each row whose value the bounding measurements pin down.
 
@@ -388,7 +388,7 @@ def _close_gaps(
 
 
 @_kernel(parallel=True)
-def _median3(disp: np.ndarray, invalid: float) -> np.ndarray:
+def _median3(disp: np.ndarray, invalid: np.float32) -> np.ndarray:
     """3x3 median of each valid pixel; invalid neighbours (== ``invalid``) count as the centre value.
 
     Removes single-pixel outliers and WTA staircase noise without bleeding into holes. NaN is
@@ -621,7 +621,7 @@ def fill_holes(
 
 
 @_kernel(parallel=True)
-def _fill_rows(disp: np.ndarray, invalid: float) -> np.ndarray:
+def _fill_rows(disp: np.ndarray, invalid: np.float32) -> np.ndarray:
     """Each hole run takes the smaller of the valid values bounding it in its row (background)."""
     h, w = disp.shape
     out = disp.copy()
@@ -644,7 +644,7 @@ def _fill_rows(disp: np.ndarray, invalid: float) -> np.ndarray:
 
 
 @_kernel(parallel=True)
-def _fill_directions(disp: np.ndarray, invalid: float) -> np.ndarray:
+def _fill_directions(disp: np.ndarray, invalid: np.float32) -> np.ndarray:
     """Second smallest of the nearest valid values along 8 directions (smallest if only one)."""
     h, w = disp.shape
     out = disp.copy()
@@ -675,7 +675,7 @@ def _fill_directions(disp: np.ndarray, invalid: float) -> np.ndarray:
 
 @_kernel(parallel=True)
 def _weighted_median_fill(
-    filled: np.ndarray, coded: np.ndarray, img: np.ndarray, invalid: float, radius: int, sigma: np.float32
+    filled: np.ndarray, coded: np.ndarray, img: np.ndarray, invalid: np.float32, radius: int, sigma: np.float32
 ) -> np.ndarray:
     """Intensity-weighted median over a window, applied only where ``coded`` was a hole."""
     h, w = filled.shape
