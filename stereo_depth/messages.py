@@ -13,6 +13,7 @@ from __future__ import annotations
 import array
 import dataclasses
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,6 +21,7 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.geometry import Rays, depth_to_points
 from stereo_depth.errors import ImageError
 
 # camera encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
@@ -312,21 +314,6 @@ class CloudBuffer:
         return self._data
 
 
-def _pack_points(data: Any, points: np.ndarray, color: np.ndarray | None, rgb_offset: int, point_step: int) -> None:
-    """One vectorized write per field into the records: xyz as one 12-byte item, rgb as one uint32."""
-    height, width = points.shape[:2]
-    records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
-    xyz = np.ascontiguousarray(points, dtype=np.float32).view(np.dtype("V12"))
-    records[:, :, 0:12].view(np.dtype("V12"))[...] = xyz
-    if color is None:
-        return
-    rgb = records[:, :, rgb_offset : rgb_offset + 4].view(np.uint32)[:, :, 0]
-    if color.ndim == 2:  # grey: r = g = b
-        np.multiply(color, np.uint32(0x010101), out=rgb, dtype=np.uint32)
-    else:
-        rgb[...] = pack_rgb(color)
-
-
 def points_to_cloud(
     types: MessageTypes,
     header: Any,
@@ -339,13 +326,54 @@ def points_to_cloud(
 
     `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous cloud (see CloudBuffer).
     """
-    height, width = points.shape[:2]
+
+    def copy_points(xyz: np.ndarray) -> None:
+        xyz[...] = points
+
+    return _cloud(types, header, points.shape[:2], copy_points, color, avoid_padding, buffer)
+
+
+def depth_to_cloud(
+    types: MessageTypes,
+    header: Any,
+    depth: np.ndarray,
+    rays: Rays,
+    color: np.ndarray | None = None,
+    avoid_padding: bool = False,
+    buffer: CloudBuffer | None = None,
+) -> Any:
+    """`points_to_cloud(depth_to_points(depth, rays), ...)`, bit for bit, without the points array:
+    x, y, z are computed straight into the message's buffer (the live node's way, 2-3 ms less a frame)."""
+
+    def compute_points(xyz: np.ndarray) -> None:
+        depth_to_points(depth, rays, out=xyz)
+
+    return _cloud(types, header, depth.shape[:2], compute_points, color, avoid_padding, buffer)
+
+
+def _cloud(
+    types: MessageTypes,
+    header: Any,
+    shape: tuple[int, ...],
+    write_xyz: Callable[[np.ndarray], None],
+    color: np.ndarray | None,
+    avoid_padding: bool,
+    buffer: CloudBuffer | None,
+) -> Any:
+    """The cloud's layout and buffer; `write_xyz` fills the (H, W, 3) float32 view of x, y, z in it."""
+    height, width = shape
     fields, point_step = cloud_layout(color is not None, avoid_padding)
-    size = height * width * point_step
     key = (height, width, tuple(fields), point_step)
-    data = (buffer or CloudBuffer()).get(types, key, size)
-    rgb_offset = fields[3][1] if color is not None else 0
-    _pack_points(data, points, color, rgb_offset, point_step)
+    data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
+    records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
+    write_xyz(records.view(np.float32)[:, :, 0:3])
+    if color is not None:
+        rgb_offset = fields[3][1]
+        rgb = records[:, :, rgb_offset : rgb_offset + 4].view(np.uint32)[:, :, 0]
+        if color.ndim == 2:  # grey: r = g = b
+            np.multiply(color, np.uint32(0x010101), out=rgb, dtype=np.uint32)
+        else:
+            rgb[...] = pack_rgb(color)
     return _with_data(
         types,
         types.PointCloud2,

@@ -12,12 +12,15 @@ import pytest
 
 from stereo_depth.bag.types import deserialize, rosbags_types, serialize
 from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import ImageError
 from stereo_depth.messages import (
+    CloudBuffer,
     array_to_image,
     camera_info_from_msg,
     camera_info_to_msg,
     cloud_to_arrays,
+    depth_to_cloud,
     disparity_from_msg,
     disparity_to_msg,
     image_to_array,
@@ -157,3 +160,23 @@ def test_cloud_layout_matches_stereo_image_proc(avoid_padding: bool, offsets: li
     xyz, rgb = cloud_to_arrays(msg)
     np.testing.assert_array_equal(xyz, points)
     assert rgb is not None and rgb[0, 0] == 0x00FF0000
+
+
+@pytest.mark.parametrize("avoid_padding", [False, True])
+@pytest.mark.parametrize("grey", [False, True])
+def test_cloud_computed_in_place_is_the_cloud_of_the_points_byte_for_byte(
+    camera: StereoCamera, avoid_padding: bool, grey: bool
+) -> None:
+    """The live node writes x, y, z straight into a reused buffer; `process` packs the points array.
+    Both must give the same bytes, NaN patterns and untouched padding included, frame after frame."""
+    scene = load_scene(SCENES / "artl")
+    color = cv2.cvtColor(scene.left, cv2.COLOR_BGR2GRAY) if grey else scene.left
+    rays = Rays.for_camera(camera)
+    buffer = CloudBuffer()
+    assert scene.gt is not None
+    for disparity in (scene.gt, scene.gt[:, ::-1].copy()):  # the second frame reuses the buffer
+        depth = disparity_to_depth(disparity, camera)
+        expected = wire(points_to_cloud(T, HEADER, depth_to_points(depth, rays), color, avoid_padding))
+        in_place = wire(depth_to_cloud(T, HEADER, depth, rays, color, avoid_padding, buffer))
+        assert bytes(in_place.data) == bytes(expected.data)  # type: ignore[attr-defined]
+        assert np.isnan(cloud_to_arrays(in_place)[0]).any()  # invalid pixels are NaN, not zeros

@@ -121,8 +121,20 @@ class StereoPipeline:
         rectified: bool = False,
         want_points: bool = True,
     ) -> StereoResult:
+        """Every stage: `match`, then `add_geometry`."""
+        result = self.match(left, right, camera, rectified=rectified)
+        self.add_geometry(result, want_points=want_points)
+        return result
+
+    def match(
+        self, left: np.ndarray, right: np.ndarray, camera: StereoCamera | None, *, rectified: bool = False
+    ) -> StereoResult:
+        """Rectify, match and filter: the result's disparity is final, its depth and points still None.
+
+        The live node publishes the disparity at this point and leaves `add_geometry` to a second
+        thread, which may run it while this one matches the next frame.
+        """
         params, matcher = self._state
-        timings: dict[str, float] = {}
         t0 = time.perf_counter()
         _check_pair(left, right)
         scale = _grey_scale(left, right)
@@ -158,17 +170,24 @@ class StereoPipeline:
             color = _shrink_color(color, grey_small.shape) if color is not None else None
         elif factor > 1:
             _enlarge(match, grey_l.shape, factor)
-        disparity = match.disparity
         t3 = time.perf_counter()
-        depth = disparity_to_depth(disparity, camera) if camera is not None else None
-        t4 = time.perf_counter()
-        points = None
-        if want_points and camera is not None and depth is not None:
-            points = depth_to_points(depth, self._rays_for(camera))
-        t5 = time.perf_counter()
-        for name, start, end in zip(STAGES, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
-            timings[name] = (end - start) * 1000.0
-        return StereoResult(camera, grey_l, grey_r, color, disparity, match.confidence, depth, points, timings)
+        timings = {"rectify": (t1 - t0) * 1000.0, "match": (t2 - t1) * 1000.0, "filter": (t3 - t2) * 1000.0}
+        return StereoResult(camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings)
+
+    def add_geometry(self, result: StereoResult, *, want_points: bool = True) -> None:
+        """Depth (and the organized points when `want_points`) of a `match` result, when it has a camera.
+
+        Safe on another thread than `match`: it reads only the result and the per-calibration rays.
+        """
+        t0 = time.perf_counter()
+        camera = result.camera
+        if camera is not None:
+            result.depth = disparity_to_depth(result.disparity, camera)
+        t1 = time.perf_counter()
+        if want_points and camera is not None and result.depth is not None:
+            result.points = depth_to_points(result.depth, self.rays_for(camera))
+        t2 = time.perf_counter()
+        result.timings_ms.update(depth=(t1 - t0) * 1000.0, points=(t2 - t1) * 1000.0)
 
     def _shrunk(self, camera: StereoCamera, factor: int) -> StereoCamera:
         """The calibration of processed-size outputs, built once per calibration and factor."""
@@ -177,7 +196,8 @@ class StereoPipeline:
             self._small_camera = (key, camera.shrunk(factor))
         return self._small_camera[1]
 
-    def _rays_for(self, camera: StereoCamera) -> Rays:
+    def rays_for(self, camera: StereoCamera) -> Rays:
+        """The pixel rays of this calibration, computed once per calibration."""
         key = camera.key()
         if key not in self._rays:
             self._rays = {key: Rays.for_camera(camera)}

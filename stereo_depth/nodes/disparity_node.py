@@ -35,9 +35,10 @@ class DisparityNode(StereoIONode):
         left, right, camera = self.read_stereo_pair(messages, settings.options)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        result = self.run_pipeline(left, right, camera, rectified=True, want_points=False)
+        result = self.match_pair(left, right, camera, rectified=True)
         start = time.perf_counter()
-        message = disparity_message(RCLPY_TYPES, left_msg.header, result.disparity, camera, settings.stereo)
+        assert result.camera is not None  # the processed-size camera with downsample_output: processed
+        message = disparity_message(RCLPY_TYPES, left_msg.header, result.disparity, result.camera, settings.stereo)
         self._disparity.publish(message)
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}

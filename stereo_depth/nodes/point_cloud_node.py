@@ -13,7 +13,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
+from stereo_depth.core.geometry import disparity_to_depth
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
 from stereo_depth.messages import CloudBuffer, disparity_from_msg
@@ -32,12 +32,12 @@ class PointCloudNode(StereoIONode):
 
     def __init__(self) -> None:
         super().__init__("point_cloud_node")
-        self.pipeline = StereoPipeline()  # only its calibration cache is used here
-        self._rays: tuple[tuple[object, ...], Rays] | None = None
+        self.pipeline = StereoPipeline()  # only its calibration and ray caches are used here
         self._points = self.output(PointCloud2, "points2")
         self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+        assert self.pipeline is not None
         image_msg, left_info, right_info, disparity_msg = messages
         start = time.perf_counter()
         image = self.read_image(0, image_msg, settings.options)
@@ -47,10 +47,12 @@ class PointCloudNode(StereoIONode):
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         start = time.perf_counter()
-        points = depth_to_points(disparity_to_depth(disparity, camera, offset_adjusted=True), self._rays_for(camera))
+        depth = disparity_to_depth(disparity, camera, offset_adjusted=True)
+        rays = self.pipeline.rays_for(camera)
+        cloud = cloud_message(image_msg.header, depth, rays, image, settings.options, self._cloud_buffer)
         timed(stages, "points", start)
         start = time.perf_counter()
-        self._points.publish(cloud_message(image_msg.header, points, image, settings.options, self._cloud_buffer))
+        self._points.publish(cloud)
         timed(stages, "publish", start)
         return stages
 
@@ -63,11 +65,6 @@ class PointCloudNode(StereoIONode):
                     f"{camera.width}x{camera.height}; remap the topics of one camera together"
                 )
                 raise ImageError(msg)
-
-    def _rays_for(self, camera: StereoCamera) -> Rays:
-        if self._rays is None or self._rays[0] != camera.key():
-            self._rays = (camera.key(), Rays.for_camera(camera))
-        return self._rays[1]
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,6 +3,13 @@
 The node most users run: no intermediate topics, so no extra serialization of full-size images.
 Topics and parameters are stereo_image_proc's (see README); `profile:=stereo_image_proc` gives its
 defaults.
+
+Two worker threads form a pipeline: the first rectifies, matches and publishes the disparity (and the
+rectified image and confidence); the second turns that disparity into depth and points2 and publishes
+them, while the first already matches the next frame. So the disparity goes out without waiting for
+the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage keeps
+only the newest disparity too: one it could not start before a newer one arrived is dropped and
+counted ("dropped clouds" in diagnostics).
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
 from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
-from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, run_node, timed
+from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, cloud_message, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 
 
@@ -58,22 +65,52 @@ class StereoNode(StereoIONode):
         self._check_idle = threading.Event()
         self._check_idle.set()
         self._frames = 0
+        self._geometry = LatestWorker(self._geometry_stage, self.diagnostics.add_dropped_cloud)
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         assert self.pipeline is not None and settings.stereo is not None
-        left_msg = messages[0]
+        header = messages[0].header
         options = settings.options
         start = time.perf_counter()
         left, right, camera = self.read_stereo_pair(messages, options)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        want_points = self.wanted(self._points, options.publish_points)
-        result = self.run_pipeline(left, right, camera, want_points=want_points)
+        result = self.match_pair(left, right, camera)
         start = time.perf_counter()
-        self._publish(left_msg.header, result, settings, options)
+        self._publish_images(header, result, settings, options)
         timed(stages, "publish", start)
-        self._maybe_check_calibration(left_msg.header, result, options)
-        return {**result.timings_ms, **stages}
+        self._maybe_check_calibration(header, result, options)
+        want_depth = self.wanted(self._depth, options.publish_depth)
+        want_points = self.wanted(self._points, options.publish_points)
+        if not (want_depth or want_points):
+            return {**result.timings_ms, **stages}
+        self._geometry.submit((header, result, stages, options, want_depth, want_points))
+        return None
+
+    def _geometry_stage(self, job: tuple[Any, StereoResult, dict[str, float], NodeOptions, bool, bool]) -> None:
+        """Second stage: depth and points2 of a published disparity, then the frame is done."""
+        header, result, stages, options, want_depth, want_points = job
+
+        def work() -> None:
+            assert self.pipeline is not None and result.camera is not None
+            self.pipeline.add_geometry(result, want_points=False)  # the points go straight into the cloud
+            assert result.depth is not None
+            if want_depth:
+                start = time.perf_counter()
+                self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
+                timed(stages, "publish_depth", start)
+            if want_points:
+                start = time.perf_counter()
+                color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+                rays = self.pipeline.rays_for(result.camera)
+                cloud = cloud_message(header, result.depth, rays, color, options, self._cloud_buffer)
+                timed(stages, "points", start)
+                start = time.perf_counter()
+                self._points.publish(cloud)
+                timed(stages, "publish_points", start)
+            self.finish_frame(stamp_to_ns(header.stamp), {**result.timings_ms, **stages})
+
+        self.guarded(work)
 
     def _maybe_check_calibration(self, header: Any, result: StereoResult, options: NodeOptions) -> None:
         self._frames += 1
@@ -93,10 +130,12 @@ class StereoNode(StereoIONode):
             self._check_idle.set()
 
     def destroy_node(self) -> None:
+        super().destroy_node()  # stops the first stage: nothing new reaches the second
+        self._geometry.stop()
         self._checker.shutdown(wait=True, cancel_futures=True)
-        super().destroy_node()
 
-    def _publish(self, header: Any, result: StereoResult, settings: Settings, options: NodeOptions) -> None:
+    def _publish_images(self, header: Any, result: StereoResult, settings: Settings, options: NodeOptions) -> None:
+        """What the first stage publishes: rectified image, disparity, confidence."""
         assert result.camera is not None and settings.stereo is not None
         if self.wanted(self._rect, options.publish_rectified):
             self._rect.publish(array_to_image(RCLPY_TYPES, header, result.left_rect))
@@ -105,13 +144,8 @@ class StereoNode(StereoIONode):
         if self.wanted(self._disparity, options.publish_disparity):
             disparity = disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, settings.stereo)
             self._disparity.publish(disparity)
-        if result.depth is not None and self.wanted(self._depth, options.publish_depth):
-            self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
         if result.confidence is not None and self.wanted(self._confidence, options.publish_confidence):
             self._confidence.publish(array_to_image(RCLPY_TYPES, header, result.confidence, "32FC1"))
-        if result.points is not None:
-            color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-            self._points.publish(cloud_message(header, result.points, color, options, self._cloud_buffer))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -71,6 +71,7 @@ class NodeDiagnostics:
         self._stage_ms: dict[str, deque[float]] = {}  # the last RECENT_FRAMES frames
         self._latency_s: deque[float] = deque(maxlen=RECENT_FRAMES)
         self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
+        self.dropped_clouds = 0  # disparities published whose depth / points2 a newer frame replaced
         self.unmatched = 0  # messages the synchronizer discarded (no partner, queue overflow, stale)
         self.processed = 0
         self.last_error = ""
@@ -137,6 +138,10 @@ class NodeDiagnostics:
         with self._lock:
             self.dropped += count
 
+    def add_dropped_cloud(self) -> None:
+        with self._lock:
+            self.dropped_clouds += 1
+
     def add_unmatched(self, count: int) -> None:
         if count:
             with self._lock:
@@ -202,6 +207,7 @@ class NodeDiagnostics:
             values.append(("latency from stamp (s)", f"{sum(self._latency_s) / len(self._latency_s):.3f}"))
         values.append(("frames processed", str(self.processed)))
         values.append(("dropped frames", str(self.dropped)))
+        values.append(("dropped clouds (depth, points2)", str(self.dropped_clouds)))
         values.append(("unmatched input messages", str(self.unmatched)))
         values.append(("stale or repeated stamps", str(self.stale)))
         values.append(("time jumps (pairing restarted)", str(self.time_jumps)))

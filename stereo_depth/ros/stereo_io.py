@@ -27,15 +27,16 @@ from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
 from stereo_depth.messages import (
     CloudBuffer,
     camera_info_from_msg,
+    depth_to_cloud,
     image_to_pipeline,
     make_header,
-    points_to_cloud,
     stamp_to_ns,
 )
 from stereo_depth.ros.diagnostics import NodeDiagnostics
@@ -133,8 +134,9 @@ class StereoIONode(Node):
 
     # ------------------------------------------------------------ to implement / use in subclasses
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
-        """Turn one matched set into outputs; return per-stage times (ms) for diagnostics."""
+    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
+        """Turn one matched set into outputs; return per-stage times (ms) for diagnostics, or None when
+        the rest of the frame was handed to another thread, which calls `finish_frame` when done."""
         raise NotImplementedError
 
     def output(self, msg_type: Any, topic: str) -> Publisher:
@@ -175,13 +177,31 @@ class StereoIONode(Node):
             )
         return camera
 
-    def run_pipeline(self, left: Any, right: Any, camera: StereoCamera, **options: Any) -> StereoResult:
-        """`pipeline.process`, with both image topics named in any error it raises."""
+    def match_pair(self, left: Any, right: Any, camera: StereoCamera, **options: Any) -> StereoResult:
+        """`pipeline.match`, with both image topics named in any error it raises."""
         assert self.pipeline is not None
         try:
-            return self.pipeline.process(left, right, camera, **options)
+            return self.pipeline.match(left, right, camera, **options)
         except StereoDepthError as exc:
             raise type(exc)(f"{self.topics[0]} and {self.topics[2]}: {exc}") from exc
+
+    def finish_frame(self, stamp_ns: int, stage_ms: dict[str, float]) -> None:
+        """A frame's outputs are all published: its stage times and latency go to diagnostics."""
+        latency_s = (self.get_clock().now().nanoseconds - stamp_ns) / 1e9
+        self.diagnostics.frame_done(stage_ms, latency_s)
+
+    def guarded(self, work: Callable[[], None]) -> None:
+        """Run one frame's work on a worker thread: bad input is logged (throttled) and the frame
+        skipped; anything else is a bug, reported as such, and the node keeps serving."""
+        try:
+            work()
+        except StereoDepthError as exc:
+            self.problems.skipped(str(exc))
+        except Exception as exc:
+            if not self.context.ok():
+                return  # shutting down: publishers are gone
+            self.diagnostics.error(f"internal error: {exc!r}")
+            self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
 
     def read_stereo_pair(self, messages: tuple[Any, ...], options: NodeOptions) -> tuple[Any, Any, StereoCamera]:
         """(left, right, camera) from (left image, left info, right image, right info), sizes checked
@@ -273,22 +293,16 @@ class StereoIONode(Node):
 
     def _run_frame(self, job: tuple[int, tuple[Any, ...]]) -> None:
         stamp_ns, messages = job
-        settings = self.parameters.settings
-        try:
+
+        def work() -> None:
+            settings = self.parameters.settings
             if self.pipeline is not None and settings.stereo is not None:
                 self._use_params(self.pipeline, settings.stereo)
             stage_ms = self.process(messages, settings)
-        except StereoDepthError as exc:
-            self.problems.skipped(str(exc))
-            return
-        except Exception as exc:  # a bug, not bad input: say so, keep serving the next frames
-            if not self.context.ok():
-                return  # shutting down: publishers are gone
-            self.diagnostics.error(f"internal error: {exc!r}")
-            self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
-            return
-        latency_s = (self.get_clock().now().nanoseconds - stamp_ns) / 1e9
-        self.diagnostics.frame_done(stage_ms, latency_s)
+            if stage_ms is not None:
+                self.finish_frame(stamp_ns, stage_ms)
+
+        self.guarded(work)
 
     @staticmethod
     def _use_params(pipeline: StereoPipeline, params: StereoParams) -> None:
@@ -308,14 +322,15 @@ class StereoIONode(Node):
         super().destroy_node()
 
 
-def cloud_message(header: Any, points: Any, image: Any, options: NodeOptions, buffer: CloudBuffer) -> Any:
-    """Organized PointCloud2; colour from the rectified left image (grey when the camera is mono).
+def cloud_message(header: Any, depth: Any, rays: Rays, image: Any, options: NodeOptions, buffer: CloudBuffer) -> Any:
+    """Organized PointCloud2 of a depth image; colour from the rectified left image (grey when the
+    camera is mono). The points are computed straight into the message.
 
     `buffer`: the publisher's own CloudBuffer; publish the message before the next call reuses it.
     """
     color = image if options.use_color else None
-    return points_to_cloud(
-        RCLPY_TYPES, header, points, color, avoid_padding=options.avoid_point_cloud_padding, buffer=buffer
+    return depth_to_cloud(
+        RCLPY_TYPES, header, depth, rays, color, avoid_padding=options.avoid_point_cloud_padding, buffer=buffer
     )
 
 
