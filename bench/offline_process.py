@@ -2,8 +2,10 @@
 
 The input is the anchor's synthetic stream (bench/anchor_frames.py: mono8, textured layers, 64 px of
 disparity) written to an uncompressed MCAP rosbag2. Ours is the real command line
-(`python -m stereo_depth.cli process IN OUT --profile P`, its own frames/s line: read, sync, pipeline,
-all outputs serialized into a new bag). The bare loop is what a hand-written script does with the same
+(`python -m stereo_depth.cli process IN OUT --profile P [options]`, its own frames/s line: read, sync,
+pipeline, outputs serialized into a new bag), in the variants of VARIANTS: every output (about 12 MB a
+VGA frame, mostly points2) as uncompressed MCAP, zstd MCAP and sqlite3, and the disparity alone.
+The bare loop is what a hand-written script does with the same
 bag: rosbags reader + CDR deserialize, np.frombuffer, remap x2 (maps built once), the same OpenCV
 matcher, cv2.reprojectImageTo3D; it writes nothing. "not written" is `process`'s per-frame work without
 the storage (read, pair, pipeline, every output message serialized-ready), in this process: the part
@@ -58,10 +60,18 @@ def write_bag(path: Path, width: int, height: int, count: int) -> None:
             writer.write(f"{NAMESPACE}/right/camera_info", camera_info_to_msg(types, header, infos[1]), stamp)
 
 
-def ours(bag: Path, out: Path, profile: str, storage: str) -> float:
+# `process` variants timed: label -> extra command-line options
+VARIANTS = {
+    "process, mcap": [],
+    "process, mcap --compress": ["--compress"],
+    "process, sqlite3": ["--storage", "sqlite3"],
+    "process --outputs disparity": ["--outputs", "disparity"],
+}
+
+
+def ours(bag: Path, out: Path, profile: str, options: list[str]) -> float:
     """frames/s as `stereo-depth process` reports it (its own clock: bag open to bag closed)."""
-    cmd = [sys.executable, "-m", "stereo_depth.cli", "process", str(bag), str(out), "--profile", profile]
-    cmd += ["--storage", storage]
+    cmd = [sys.executable, "-m", "stereo_depth.cli", "process", str(bag), str(out), "--profile", profile, *options]
     done = subprocess.run([*cmd, "--overwrite"], capture_output=True, text=True, check=True)
     found = re.search(r"([0-9.]+) frames/s", done.stdout + done.stderr)
     if found is None:
@@ -133,31 +143,29 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--profiles", nargs="+", default=["stereo_image_proc", "default"])
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x720"])
-    parser.add_argument(
-        "--storage", nargs="+", default=["mcap", "sqlite3"], help="output storages of `process` to time (mcap: zstd)"
-    )
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), metavar="V")
     args = parser.parse_args()
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {args.frames} frames, load {' '.join(load)}")
-    print(f"{'profile':18s}{'size':>10s}{'output':>18s}{'ours f/s':>10s}{'bare f/s':>10s}{'ratio':>7s}")
+    print(f"{'profile':18s}{'size':>10s}{'output':>30s}{'ours f/s':>10s}{'bare f/s':>10s}{'ratio':>7s}")
     with tempfile.TemporaryDirectory(prefix="offline_bench_") as tmp:
         for size in args.sizes:
             width, height = (int(v) for v in size.split("x"))
             bag = Path(tmp) / f"in_{size}"
             write_bag(bag, width, height, args.frames)
             for profile in args.profiles:
-                mine: dict[str, list[float]] = {f"process, {storage}": [] for storage in args.storage}
+                mine: dict[str, list[float]] = {variant: [] for variant in args.variants}
                 mine["not written"] = []
                 theirs = []
                 for _ in range(args.repeats):
-                    for storage in args.storage:
-                        mine[f"process, {storage}"].append(ours(bag, Path(tmp) / "out", profile, storage))
+                    for variant in args.variants:
+                        mine[variant].append(ours(bag, Path(tmp) / "out", profile, VARIANTS[variant]))
                     mine["not written"].append(ours_unwritten(bag, profile))
                     theirs.append(bare(bag, profile))
                 bare_fps = statistics.median(theirs)
                 for output, values in mine.items():
                     fps = statistics.median(values)
-                    row = f"{profile:18s}{size:>10s}{output:>18s}{fps:10.1f}{bare_fps:10.1f}{fps / bare_fps:7.2f}"
+                    row = f"{profile:18s}{size:>10s}{output:>30s}{fps:10.1f}{bare_fps:10.1f}{fps / bare_fps:7.2f}"
                     print(row, flush=True)
 
 

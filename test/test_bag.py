@@ -147,6 +147,18 @@ def test_mcap_and_sqlite3_input_give_the_same_result(
     assert_same_disparity(disparities(out), disparities(euroc_processed[0]))
 
 
+def test_chosen_outputs_only_and_compressed_chunks_change_nothing_else(
+    tmp_path: Path, euroc_processed: tuple[Path, ProcessSummary]
+) -> None:
+    out = tmp_path / "disparity_only"
+    assert main(["process", str(EUROC_BAG), str(out), "--outputs", "disparity", "--compress"]) == 0
+    metadata = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert [t["topic_metadata"]["name"] for t in metadata["topics_with_message_count"]] == [f"{NS}/disparity"]
+    assert b"zstd" in next(out.glob("*.mcap")).read_bytes()  # MCAP chunk compression
+    assert b"zstd" not in next(euroc_processed[0].glob("*.mcap")).read_bytes()  # the default writes them plain
+    assert_same_disparity(disparities(out), disparities(euroc_processed[0]))
+
+
 def test_middlebury_accuracy_against_ground_truth(middlebury_processed: Path) -> None:
     """Measured with the default profile: bad-2 of estimated 5.7 / 4.8 / 13.2 %, density 84-86 %."""
     truth = read_ground_truth_index(BAGS / "middlebury_gt")

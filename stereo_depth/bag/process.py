@@ -32,12 +32,17 @@ from stereo_depth.messages import (
 )
 from stereo_depth.outputs import disparity_message
 
+# What stereo_node publishes by default, by output name (left/image_rect_color too when the input has colour).
+OUTPUTS = ("disparity", "depth", "points2", "left/image_rect")
+
 
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
+    compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
+    outputs: tuple[str, ...] = OUTPUTS
     overwrite: bool = False
     png_dir: Path | None = None
     ply_dir: Path | None = None  # one PLY per frame
@@ -81,25 +86,35 @@ class ProcessSummary:
         return out
 
 
-def frame_outputs(types: MessageTypes, header: Any, result: StereoResult, params: StereoParams) -> dict[str, Any]:
-    """The messages stereo_node publishes for one frame (with its default options), by output name."""
-    assert result.camera is not None and result.depth is not None and result.points is not None
-    color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-    outputs = {
-        "disparity": disparity_message(types, header, result.disparity, result.camera, params),
-        "depth": array_to_image(types, header, result.depth, "32FC1"),
-        "points2": points_to_cloud(types, header, result.points, color),
-        "left/image_rect": array_to_image(types, header, result.left_rect),
-    }
-    if result.left_rect_color is not None:
-        outputs["left/image_rect_color"] = array_to_image(types, header, result.left_rect_color)
-    return outputs
+def frame_outputs(
+    types: MessageTypes, header: Any, result: StereoResult, params: StereoParams, outputs: tuple[str, ...] = OUTPUTS
+) -> dict[str, Any]:
+    """The messages stereo_node publishes for one frame (with its default options), by output name;
+    only those named in `outputs`."""
+    assert result.camera is not None
+    messages: dict[str, Any] = {}
+    if "disparity" in outputs:
+        messages["disparity"] = disparity_message(types, header, result.disparity, result.camera, params)
+    if "depth" in outputs:
+        assert result.depth is not None
+        messages["depth"] = array_to_image(types, header, result.depth, "32FC1")
+    if "points2" in outputs:
+        assert result.points is not None
+        color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+        messages["points2"] = points_to_cloud(types, header, result.points, color)
+    if "left/image_rect" in outputs:
+        messages["left/image_rect"] = array_to_image(types, header, result.left_rect)
+        if result.left_rect_color is not None:
+            messages["left/image_rect_color"] = array_to_image(types, header, result.left_rect_color)
+    return messages
 
 
-def run_frame(pipeline: StereoPipeline, frame: StereoMessages, rectified: bool) -> StereoResult:
+def run_frame(
+    pipeline: StereoPipeline, frame: StereoMessages, rectified: bool, want_points: bool = True
+) -> StereoResult:
     camera = pipeline.camera_for(camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info))
     left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
-    return pipeline.process(left, right, camera, rectified=rectified)
+    return pipeline.process(left, right, camera, rectified=rectified, want_points=want_points)
 
 
 class Progress:
@@ -166,18 +181,19 @@ def process_bag(
     start = time.perf_counter()
     with (
         StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync) as reader,
-        BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite) as writer,
+        BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite, compress=options.compress) as writer,
     ):
         topics = reader.topics
         progress = Progress(reader.count(topics.names[0]))
+        want_points = "points2" in options.outputs or options.ply_dir is not None
         for frame in reader.frames():
             try:
-                result = run_frame(pipeline, frame, topics.rectified)
+                result = run_frame(pipeline, frame, topics.rectified, want_points)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
             header = frame.left_image.header
-            for name, message in frame_outputs(types, header, result, params).items():
+            for name, message in frame_outputs(types, header, result, params, options.outputs).items():
                 writer.write(topics.output(name), message, frame.stamp_ns)
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))

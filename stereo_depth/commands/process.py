@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from stereo_depth.bag.process import ProcessOptions, process_bag
+from stereo_depth.bag.process import OUTPUTS, ProcessOptions, process_bag
 from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import add_param_options
@@ -58,6 +58,17 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ply", type=Path, metavar="DIR", help="write a coloured point cloud (binary PLY) per frame")
     parser.add_argument(
         "--storage", choices=sorted(STORAGES), default="mcap", help="output storage (default %(default)s)"
+    )
+    parser.add_argument(
+        "--outputs",
+        nargs="+",
+        choices=OUTPUTS,
+        default=list(OUTPUTS),
+        metavar="NAME",
+        help=f"topics to write (default all: {' '.join(OUTPUTS)}); a VGA points2 is 10 MB a frame",
+    )
+    parser.add_argument(
+        "--compress", action="store_true", help="zstd-compress the MCAP chunks (smaller, about 2x slower to write)"
     )
     parser.add_argument("--overwrite", action="store_true", help="replace OUT_BAG if it exists")
 
@@ -124,6 +135,8 @@ def options_from(args: argparse.Namespace) -> ProcessOptions:
         namespace=args.namespace,
         sync=sync_from(args),
         storage=args.storage,
+        compress=args.compress,
+        outputs=tuple(args.outputs),
         overwrite=args.overwrite,
         png_dir=args.png,
         ply_dir=args.ply,
