@@ -53,6 +53,8 @@ class Case:
 
 
 ANCHOR = ("profile:=stereo_image_proc",)  # BM, 64 disparities, window 15: the anchor's defaults
+# ROS 1 stereo_image_proc packs x, y, z, rgb into 16 bytes a point; ROS 2's default (and ours) pads to 32.
+SAME_CLOUD = ("avoid_point_cloud_padding:=true",)
 CASES = {
     c.name: c
     for c in (
@@ -61,18 +63,24 @@ CASES = {
         Case("fast_vga_60", 640, 480, 60.0, ("profile:=fast",)),
         Case("fast_vga_30_processed", 640, 480, 30.0, ("profile:=fast", "downsample_output:=processed")),
         Case("bm_vga_30", 640, 480, 30.0, ANCHOR),
+        Case("bm_vga_30_16b", 640, 480, 30.0, (*ANCHOR, *SAME_CLOUD)),
         Case("bm_vga_30_disparity_only", 640, 480, 30.0, ANCHOR, points=False),
         Case("bm_vga_90", 640, 480, 90.0, ANCHOR),
         Case("sgbm_vga_30", 640, 480, 30.0, (*ANCHOR, "stereo_algorithm:=1")),
+        Case("sgbm_vga_30_16b", 640, 480, 30.0, (*ANCHOR, "stereo_algorithm:=1", *SAME_CLOUD)),
         Case("bm_720p_30", 1280, 720, 30.0, ANCHOR),
+        Case("bm_720p_30_16b", 1280, 720, 30.0, (*ANCHOR, *SAME_CLOUD)),
     )
 }
 ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
     "bm_vga_30": "bm vga 1x",
+    "bm_vga_30_16b": "bm vga 1x",
     "bm_vga_30_disparity_only": "bm vga 1x disparity-only",
     "bm_vga_90": "bm vga 3x",
     "sgbm_vga_30": "sgbm vga 1x",
+    "sgbm_vga_30_16b": "sgbm vga 1x",
     "bm_720p_30": "bm hd720 1x",
+    "bm_720p_30_16b": "bm hd720 1x",
 }
 
 
@@ -354,10 +362,10 @@ def print_header() -> None:
 
 
 def print_row(r: dict[str, Any]) -> None:
-    """dropped: replayed frames without a disparity; diag: the node's own 'dropped frames' count."""
+    """dropped: replayed frames without a disparity / without a points2; diag: the node's own count."""
     d, p = r["disparity"], r["points2"]
     points_hz = f"{p['hz']:.1f}" if p else "-"
-    dropped = f"{d['dropped']:.0f}/{r['frames']}"
+    dropped = f"{d['dropped']:.0f}" + (f"/{p['dropped']:.0f}" if p else "")
     print(
         f"{r['case']:26s}{d['hz']:8.1f}{points_hz:>8s}{dropped:>9s}{r['node_dropped_diag']!s:>6s}"
         f"{latency_text(d):>25s}{latency_text(p):>25s}{r['node_cpu_pct']:8.0f}%{r['node_cpu_ms_per_frame']:9.1f}"
@@ -367,30 +375,37 @@ def print_row(r: dict[str, Any]) -> None:
 
 
 def print_anchor_comparison(rows: list[dict[str, Any]], anchor_file: Path) -> None:
-    """Side by side with the anchor's summary.json (written by its run.sh), case by case."""
+    """Side by side with the anchor's summary.json (written by its run.sh): each anchor case, then our
+    runs of it (32 B points: ROS 2's layout; 16 B: ROS 1's, the bytes the anchor publishes).
+    dropped: frames without a disparity / without a points2."""
     anchor = json.loads(anchor_file.read_text())
     print(
-        f"\n{'case (anchor name)':28s}{'':12s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>8s}"
+        f"\n{'case (anchor name)':26s}{'':22s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
         f"{'disp lat ms':>12s}{'pts lat ms':>11s}{'CPU %':>7s}"
     )
-    for r in rows:
-        a = anchor.get(ANCHOR_NAMES.get(r["case"], ""))
+    for name in dict.fromkeys(ANCHOR_NAMES[r["case"]] for r in rows if r["case"] in ANCHOR_NAMES):
+        a = anchor.get(name)
         if a is None:
             continue
-        name = ANCHOR_NAMES[r["case"]]
-        p = r["points2"] or {}
         a_pts = f"{a['points2_hz']:.1f}" if a.get("points2_hz") else "-"
         a_pl = f"{a['points2_lat_ms_median']:.1f}" if a.get("points2_lat_ms_median") else "-"
+        a_drop = f"{a['disparity_dropped']:.0f}" + (f"/{a['points2_dropped']:.0f}" if a.get("points2_hz") else "")
         print(
-            f"{name:28s}{'C++ ROS 1':12s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a['disparity_dropped']:8.0f}"
+            f"{name:26s}{'C++ ROS 1 (16 B/pt)':22s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a_drop:>10s}"
             f"{a['disparity_lat_ms_median']:12.1f}{a_pl:>11s}{a['node_cpu_pct']:7.0f}"
         )
-        ours_pts = f"{p['hz']:.1f}" if p else "-"
-        ours_pl = f"{p['lat_median']:.1f}" if p.get("lat_median") else "-"
-        print(
-            f"{'':28s}{'stereo_node':12s}{r['disparity']['hz']:8.1f}{ours_pts:>8s}{r['disparity']['dropped']:8.0f}"
-            f"{r['disparity']['lat_median']:12.1f}{ours_pl:>11s}{r['node_cpu_pct']:7.0f}"
-        )
+        for r in rows:
+            if ANCHOR_NAMES.get(r["case"]) != name:
+                continue
+            d, p = r["disparity"], r["points2"] or {}
+            label = "stereo_node" + ("" if not r["points2"] else " (16 B/pt)" if "16b" in r["case"] else " (32 B/pt)")
+            pts = f"{p['hz']:.1f}" if p else "-"
+            pl = f"{p['lat_median']:.1f}" if p.get("lat_median") else "-"
+            drop = f"{d['dropped']:.0f}" + (f"/{p['dropped']:.0f}" if p else "")
+            print(
+                f"{'':26s}{label:22s}{d['hz']:8.1f}{pts:>8s}{drop:>10s}"
+                f"{d['lat_median']:12.1f}{pl:>11s}{r['node_cpu_pct']:7.0f}"
+            )
 
 
 def main() -> None:

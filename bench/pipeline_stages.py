@@ -3,8 +3,8 @@
 
 Real raw EuRoC pairs (test/data/euroc) resized to each resolution, calibration scaled with them. The
 stages: decode (two rclpy Images to arrays, as the node reads them), the StereoPipeline stages (rectify,
-match, filter, depth, points), encode (DisparityImage and the organized 32-byte-point PointCloud2 with
-rgb, as the node publishes them, with the node's reused cloud buffer). The bare baseline does what a
+match, filter, depth), points (x, y, z and rgb computed straight into the organized 32-byte-point
+PointCloud2, with the node's reused buffer, as the node does), encode (the DisparityImage). The bare baseline does what a
 hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D. Both run in the same
 process, interleaved, and the table gives medians and two ratios: the pipeline alone / bare, and
 everything the node does per frame (decode + pipeline + encode) / bare.
@@ -25,10 +25,10 @@ import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.matching import Matcher, create_matcher
-from stereo_depth.core.params import StereoParams, make_params
-from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.core.params import make_params
+from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.euroc import stereo_camera_infos
-from stereo_depth.messages import CloudBuffer, array_to_image, image_to_pipeline, make_header, points_to_cloud
+from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -62,26 +62,28 @@ def bare_opencv(left: np.ndarray, right: np.ndarray, camera: StereoCamera, match
     return (time.perf_counter() - start) * 1000.0
 
 
-def encode(result: StereoResult, params: StereoParams, buffer: CloudBuffer) -> None:
-    """The two messages stereo_node builds for a disparity + points2 subscriber (publish() not included)."""
-    assert result.camera is not None and result.points is not None
-    header = make_header(RCLPY_TYPES, 1, "left")
-    disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, params)
-    points_to_cloud(RCLPY_TYPES, header, result.points, result.left_rect, buffer=buffer)
-
-
 def timed_frame(
     pipeline: StereoPipeline, messages: tuple[object, object], camera: StereoCamera, buffer: CloudBuffer
 ) -> dict[str, float]:
+    """stereo_node's work for a disparity + points2 subscriber, as it does it (publish() not included):
+    decode, match, depth, the cloud with the points computed straight into it (its 'points' stage),
+    and the DisparityImage ('encode')."""
+    header = make_header(RCLPY_TYPES, 1, "left")
     start = time.perf_counter()
     left, right = image_to_pipeline(messages[0]), image_to_pipeline(messages[1])
     decoded = time.perf_counter()
-    result = pipeline.process(left, right, camera)
-    processed = time.perf_counter()
-    encode(result, pipeline.params, buffer)
+    result = pipeline.match(left, right, camera)
+    pipeline.add_geometry(result, want_points=False)
+    assert result.camera is not None and result.depth is not None
+    geometry = time.perf_counter()
+    rays = pipeline.rays_for(result.camera)
+    depth_to_cloud(RCLPY_TYPES, header, result.depth, rays, result.left_rect, buffer=buffer)
+    cloud = time.perf_counter()
+    disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, pipeline.params)
     end = time.perf_counter()
-    ms = {"decode": (decoded - start) * 1000.0, "encode": (end - processed) * 1000.0, **result.timings_ms}
-    ms["pipeline"] = (processed - decoded) * 1000.0
+    ms = {**result.timings_ms, "decode": (decoded - start) * 1000.0, "points": (cloud - geometry) * 1000.0}
+    ms["encode"] = (end - cloud) * 1000.0
+    ms["pipeline"] = (cloud - decoded) * 1000.0
     ms["node"] = (end - start) * 1000.0
     return ms
 
