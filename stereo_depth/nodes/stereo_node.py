@@ -129,8 +129,8 @@ class StereoNode(StereoIONode):
         finally:
             self._check_idle.set()
 
-    def destroy_node(self) -> None:
-        super().destroy_node()  # stops the first stage: nothing new reaches the second
+    def stop_workers(self) -> None:
+        super().stop_workers()  # the first stage: nothing new reaches the second
         self._geometry.stop()
         self._checker.shutdown(wait=True, cancel_futures=True)
 

@@ -317,8 +317,13 @@ class StereoIONode(Node):
         header = make_header(RCLPY_TYPES, self.get_clock().now().nanoseconds, "")
         self._diagnostics_pub.publish(self.diagnostics.report(header))
 
-    def destroy_node(self) -> None:
+    def stop_workers(self) -> None:
+        """Let the running frame finish and start nothing new; a node with more threads extends this,
+        so that none of them publishes while the node is being destroyed."""
         self._worker.stop()
+
+    def destroy_node(self) -> None:
+        self.stop_workers()
         super().destroy_node()
 
 
