@@ -4,8 +4,8 @@
 Real raw EuRoC pairs (test/data/euroc) resized to each resolution, calibration scaled with them. The
 stages: decode (two rclpy Images to arrays, as the node reads them), the StereoPipeline stages (rectify,
 match, filter, depth), points (x, y, z and rgb computed straight into the organized 32-byte-point
-PointCloud2, with the node's reused buffer, as the node does), encode (the DisparityImage). The bare baseline does what a
-hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D. Both run in the same
+PointCloud2, with the node's reused buffer, as the node does), encode (the DisparityImage). The bare
+baseline does what a hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D. Both run in the same
 process, interleaved, and the table gives medians and two ratios: the pipeline alone / bare, and
 everything the node does per frame (decode + pipeline + encode) / bare.
 

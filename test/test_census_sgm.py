@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import cache
+from typing import Any
 
 import cv2
 import numpy as np
@@ -190,3 +191,14 @@ def test_rejects_colour_input() -> None:
     img = np.zeros((20, 30, 3), np.uint8)
     with pytest.raises(ValueError, match="uint8 grey"):
         census_sgm(img, img, min_disparity=0, num_disparities=16, **QUALITY)
+
+
+@pytest.mark.parametrize(
+    ("keywords", "message"),
+    [({"min_disparity": -1}, "min_disparity"), ({"num_disparities": 0}, "num_disparities"), ({"paths": 6}, "paths")],
+)
+def test_rejects_settings_the_kernels_cannot_honour(keywords: dict[str, int], message: str) -> None:
+    img = np.zeros((20, 30), np.uint8)
+    settings: dict[str, Any] = {"min_disparity": 0, "num_disparities": 16, **QUALITY, **keywords}
+    with pytest.raises(ValueError, match=message):
+        census_sgm(img, img, **settings)

@@ -3,9 +3,10 @@
 The recipe is the standard CPU one (Zabih & Woodfill census, Hirschmueller SGM):
 
     census (7x9 window, 62 bits in one uint64)
-      -> Hamming cost volume C[y, x, d] (uint16, optionally box-summed over ``window_size``)
+      -> Hamming cost volume C[y, x, d] (uint8; uint16 when box-summed over ``window_size``)
       -> 8-path scanline aggregation S = sum_r L_r, P2 shrunk across intensity edges
-      -> winner-take-all + uniqueness on S
+         (a top-down and a bottom-up sweep side by side, see ``_aggregate_select``)
+      -> winner-take-all + uniqueness on S, row by row as soon as S of the row is complete
       -> right disparity from the same S (argmin along the diagonal), left-right check
       -> parabola sub-pixel fit -> NaN-aware 3x3 median -> speckle removal
       -> gap closing: short consistent row gaps interpolated, occlusion-shaped gaps and the
@@ -33,7 +34,7 @@ __all__ = ["census_sgm", "fill_holes"]
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 #: Kernels waiting for ``numba.njit``; compiled (or loaded from the cache) on first use.
-_PENDING: dict[str, tuple[Callable[..., Any], bool, bool]] = {}
+_PENDING: dict[str, tuple[Callable[..., Any], bool, bool, bool]] = {}
 _READY: list[bool] = []
 
 prange = range  # replaced by numba.prange before any kernel is compiled
@@ -41,15 +42,17 @@ prange = range  # replaced by numba.prange before any kernel is compiled
 _SENTINEL = 0x3FFF  # "infinite" path cost in padded disparity slots; two of them still fit in uint16
 
 
-def _kernel(*, parallel: bool = False, fastmath: bool = True) -> Callable[[_F], _F]:
+def _kernel(*, parallel: bool = False, fastmath: bool = True, inline: bool = False) -> Callable[[_F], _F]:
     """Mark a function as a numba kernel without importing numba at module import time.
 
     Kernels that test for NaN must pass ``fastmath=False``: fastmath lets LLVM assume no NaNs
-    and fold ``np.isnan`` to False.
+    and fold ``np.isnan`` to False. ``inline`` has numba paste the kernel into its callers: a
+    call between kernels is otherwise a real call, with reference counting on every array view
+    passed, which costs more than a 128-disparity loop.
     """
 
     def mark(fn: _F) -> _F:
-        _PENDING[fn.__name__] = (fn, parallel, fastmath)
+        _PENDING[fn.__name__] = (fn, parallel, fastmath, inline)
         return fn
 
     return mark
@@ -69,8 +72,10 @@ def _kernels() -> None:
     module = globals()
     module["prange"] = numba.prange
     module["_popcount"] = _popcount_intrinsic()
-    for name, (fn, parallel, fastmath) in _PENDING.items():
-        module[name] = numba.njit(cache=True, parallel=parallel, fastmath=fastmath, nogil=True)(fn)
+    for name, (fn, parallel, fastmath, inline) in _PENDING.items():
+        module[name] = numba.njit(
+            cache=True, parallel=parallel, fastmath=fastmath, nogil=True, inline="always" if inline else "never"
+        )(fn)
     _READY.append(True)
 
 
@@ -90,13 +95,13 @@ def _census(padded: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     w = padded.shape[1] - 2 * half_w
     out = np.zeros((h, w), np.uint64)
     for y in prange(h):
-        centre = padded[y + half_h, half_w:half_w + w]
+        centre = padded[y + half_h, half_w : half_w + w]
         bits = out[y]
         for dy in range(2 * half_h + 1):
             for dx in range(2 * half_w + 1):
                 if dy == half_h and dx == half_w:
                     continue
-                row = padded[y + dy, dx:dx + w]
+                row = padded[y + dy, dx : dx + w]
                 for x in range(w):
                     bits[x] = (bits[x] << np.uint64(1)) | np.uint64(row[x] < centre[x])
     return out
@@ -124,47 +129,78 @@ def _popcount(v: np.uint64) -> np.uint64:
     return np.uint64(bin(int(v)).count("1"))
 
 
-@_kernel(parallel=True)
-def _hamming_volume(cl: np.ndarray, cr: np.ndarray, min_d: int, vol: np.ndarray) -> None:
-    """vol[y, x, k] = Hamming(census_left(x), census_right(x - min_d - k)).
+@_kernel(inline=True)
+def _hamming_row(cl: np.ndarray, cr: np.ndarray, min_d: int, vol: np.ndarray) -> None:
+    """vol[x, k] = Hamming(census_left(x), census_right(x - min_d - k)) for one row, in uint8 (<= 64 bits).
 
     Right columns left of the image are clamped to column 0: the cost stays finite (it only feeds
     the aggregation) and the winner search later ignores those disparities. The unclamped part is
     a plain reversed run over the row, which LLVM vectorises.
     """
-    h, w = cl.shape
-    nd = vol.shape[2]
-    for y in prange(h):
-        for x in range(w):
-            a = cl[y, x]
-            kv = max(0, min(nd, x - min_d + 1))
-            for k in range(kv):
-                vol[y, x, k] = np.uint16(_popcount(a ^ cr[y, np.uint64(x - min_d - k)]))
-            edge = np.uint16(_popcount(a ^ cr[y, 0]))
-            for k in range(kv, nd):
-                vol[y, x, k] = edge
+    w = cl.shape[0]
+    nd = vol.shape[1]
+    for x in range(w):
+        a = cl[x]
+        kv = max(0, min(nd, x - min_d + 1))
+        for k in range(kv):
+            vol[x, k] = np.uint8(_popcount(a ^ cr[np.uint64(x - min_d - k)]))
+        edge = np.uint8(_popcount(a ^ cr[0]))
+        for k in range(kv, nd):
+            vol[x, k] = edge
 
 
-@_kernel()
-def _path_step(
-    cost: np.ndarray,  # (nd,) uint16 matching cost at p
-    prev: np.ndarray,  # (nd+2,) uint16 L_r(p - r), sentinels at both ends
-    prev_min: np.uint16,
-    cur: np.ndarray,  # (nd+2,) out: L_r(p)
-    acc: np.ndarray,  # (nd,) uint16 S(p), accumulated in place
+@_kernel(parallel=True)
+def _hamming_volume(cl: np.ndarray, cr: np.ndarray, min_d: int, vol: np.ndarray) -> None:
+    """The whole cost volume (``_hamming_row`` per row), for when it is box-summed before the sweeps."""
+    for y in prange(cl.shape[0]):
+        _hamming_row(cl[y], cr[y], min_d, vol[y])
+
+
+@_kernel(inline=True)
+def _recur(
+    c: Any, lo: np.uint16, mid: np.uint16, hi: np.uint16, jump: np.uint16, prev_min: np.uint16, p1: np.uint16
+) -> np.uint16:
+    """One disparity of the SGM recurrence (Hirschmueller 2008), in wrapping uint16 arithmetic:
+
+        L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d+-1) + P1, min_k L_r(p-r, k) + P2) - min_k L_r(p-r, k)
+
+    with lo/mid/hi = L_r(p-r, d-1 / d / d+1) and jump = min_k L_r(p-r, k) + P2. Branch-free, so
+    loops over d calling it vectorise.
+    """
+    return np.uint16(c + min(min(mid, jump), np.uint16(min(lo, hi) + p1)) - prev_min)
+
+
+@_kernel(inline=True)
+def _path(
+    cost: np.ndarray,  # (w, nd) matching costs C of the row
+    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes (S(p) & keep) + L_r(p)
+    x: int,  # p's column
+    keep: np.uint16,  # 0 stores L_r(p) in S (first path over S), 0xFFFF adds it
+    buf: np.ndarray,  # flat uint16 path buffers, each nd + 2 long with sentinels at both ends
+    i0: int,  # L_r(p - r) is buf[i0 : i0 + nd + 2]
+    o0: int,  # out: L_r(p) goes to buf[o0 + 1 : o0 + nd + 1]
+    prev_min: np.uint16,  # min_d L_r(p - r)
     p1: np.uint16,
     p2: np.uint16,
 ) -> np.uint16:
-    """One SGM recurrence step; returns min_d L_r(p). Written branch-free so LLVM vectorises it."""
-    nd = cost.shape[0]
+    """Advance one path by one pixel and add it to S; returns min_d L_r(p).
+
+    Shaped for LLVM's vectoriser and for a short per-call set-up, since a call is only nd / 16
+    vector steps: branch-free (``keep`` masks instead of an if), three arrays only (more exceed
+    LLVM's budget of run-time aliasing checks), the path buffers flat with unsigned offsets (no
+    strides, no negative-index wraparound). Cost and S stay 2-D rows indexed by x: flat offsets
+    for them made the right-to-left sweep ~10x slower. A path's first pixel passes a zero
+    predecessor (sentinel ends, minimum 0): the recurrence then gives L_r = C exactly, so path
+    starts need no code of their own.
+    """
     jump = np.uint16(prev_min + p2)
     new_min = np.uint16(0xFFFF)
-    for k in range(nd):
-        best = min(min(prev[k + 1], jump), np.uint16(min(prev[k], prev[k + 2]) + p1))
-        v = np.uint16(cost[k] + best - prev_min)
-        cur[k + 1] = v
+    for k in range(cost.shape[1]):
+        i = np.uint64(i0 + k)
+        v = _recur(cost[x, k], buf[i], buf[i + np.uint64(1)], buf[i + np.uint64(2)], jump, prev_min, p1)
+        buf[np.uint64(o0 + 1 + k)] = v
         new_min = min(new_min, v)
-        acc[k] = np.uint16(acc[k] + v)
+        acc[x, k] = np.uint16((acc[x, k] & keep) + v)
     return new_min
 
 
@@ -176,172 +212,231 @@ def _edge_p2(a: np.uint8, b: np.uint8, p1: int, p2: int, gamma: float) -> np.uin
 
 
 @_kernel()
-def _start_path(cost: np.ndarray, buf: np.ndarray, acc: np.ndarray, first: bool) -> np.uint16:
-    """First pixel of a path: L_r = C. ``first`` initialises S instead of adding (saves a memset)."""
-    nd = cost.shape[0]
-    m = np.uint16(0xFFFF)
-    for k in range(nd):
-        buf[k + 1] = cost[k]
-        acc[k] = cost[k] if first else np.uint16(acc[k] + cost[k])
-        m = min(m, cost[k])
-    return m
+def _p2_table(p1: int, p2: int, gamma: float) -> np.ndarray:
+    """``_edge_p2`` for every intensity step 0..255, so the sweeps do a lookup instead of two divisions."""
+    table = np.empty(256, np.uint16)
+    for g in range(256):
+        table[g] = _edge_p2(np.uint8(g), np.uint8(0), p1, p2, gamma)
+    return table
 
 
-@_kernel(parallel=True)
-def _aggregate_rows(vol: np.ndarray, img: np.ndarray, acc: np.ndarray, p1: int, p2: int, gamma: float) -> None:
-    """Left-to-right then right-to-left paths; rows are independent so they run in parallel.
+@_kernel()
+def _sweep(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    img: np.ndarray,
+    acc: np.ndarray,
+    p2_of: np.ndarray,
+    p1: int,
+    bufs: np.ndarray,
+    mins: np.ndarray,
+    y0: int,
+    y1: int,
+    sy: int,
+    finish: bool,
+    select: tuple[int, float, int, float, float],
+    disp: np.ndarray,
+    conf: np.ndarray,
+) -> None:
+    """Rows y0, y0 + sy, ... (up to y1) of one vertical sweep: 2 or 4 of the 8 SGM paths.
 
-    Runs first and stores S on the way out, so S needs no zeroing.
+    A top-down sweep (sy = 1) runs the left-to-right path and the paths coming from (y-1, x),
+    (y-1, x+1), (y-1, x-1); a bottom-up sweep (sy = -1) the right-to-left path and those from
+    (y+1, x), (y+1, x+1), (y+1, x-1). Only the horizontal and vertical paths when ``bufs`` holds
+    one direction (4-path mode).
+
+    ``bufs[y & 1, j]`` holds row y's L_r for vertical / diagonal direction j, one slot per
+    column in sweep order (slot i + 1 for the i-th column visited, so memory is walked forwards
+    in both sweeps) plus a padding slot per side that stays zero: the zero predecessor that
+    starts a path at the border. ``mins`` holds their minima. Both persist between calls, so a
+    sweep can stop at the middle row and resume. With ``finish`` False the paths store S,
+    otherwise they add to it: S of the row is then complete (the opposite sweep already passed
+    it), and the row is matched at once while it is still in cache. With ``census`` (left, right
+    census images) the storing rows first fill their row of ``vol``, which is then still in cache
+    for the paths here and read back by the other sweep; every row is stored exactly once.
     """
     h, w, nd = vol.shape
+    ndirs = bufs.shape[1]
+    n2 = nd + 2
+    span = w + 2  # buffers per direction and row
+    state = bufs.reshape(bufs.size)
+    line = np.full(3 * n2, _SENTINEL, np.uint16)  # horizontal path: zero start, then a ping-pong pair
+    line[1 : nd + 1] = 0
+    right = np.empty(w, np.uint32)
+    left_k = np.empty(w, np.int32)
+    ratio = np.empty(w, np.float32)
+    sub = np.empty(w, np.float32)
     q1 = np.uint16(p1)
-    for y in prange(h):
-        a = np.full(nd + 2, _SENTINEL, np.uint16)
-        b = np.full(nd + 2, _SENTINEL, np.uint16)
-        m = _start_path(vol[y, 0], a, acc[y, 0], True)
-        for x in range(1, w):
-            q2 = _edge_p2(img[y, x], img[y, x - 1], p1, p2, gamma)
-            m = _first_step(vol[y, x], a, m, b, acc[y, x], q1, q2)
-            a, b = b, a
-        m = _start_path(vol[y, w - 1], a, acc[y, w - 1], False)
-        for x in range(w - 2, -1, -1):
-            q2 = _edge_p2(img[y, x], img[y, x + 1], p1, p2, gamma)
-            m = _path_step(vol[y, x], a, m, b, acc[y, x], q1, q2)
-            a, b = b, a
+    add = np.uint16(0xFFFF)
+    keep = add if finish else np.uint16(0)
+    x0 = 0 if sy == 1 else w - 1
+    for y in range(y0, y1, sy):
+        cost, s_row = vol[y], acc[y]
+        if census is not None and not finish:
+            _hamming_row(census[0][y], census[1][y], select[0], cost)
+        cur_min, prev_min = mins[y & 1], mins[(y & 1) ^ 1]
+        cur0 = (y & 1) * ndirs * span  # index of row y's first buffer; row y - sy's is prev0
+        prev0 = ((y & 1) ^ 1) * ndirs * span
+        yp = min(max(y - sy, 0), h - 1)  # row of the predecessors (any row on the first: prev is zero)
+        h_min = np.uint16(0)
+        for i in range(w):
+            x = x0 + i * sy
+            s = i + 1
+            c = np.int64(img[y, x])
+            h_p2 = p2_of[abs(c - np.int64(img[y, min(max(x - sy, 0), w - 1)]))]
+            h_in = 0 if i == 0 else 2 - (i & 1)
+            h_min = _path(cost, s_row, x, keep, line, h_in * n2, (1 + (i & 1)) * n2, h_min, q1, h_p2)
+            v_p2 = p2_of[abs(c - np.int64(img[yp, x]))]
+            cur_min[0, s] = _path(
+                cost, s_row, x, add, state, (prev0 + s) * n2, (cur0 + s) * n2, prev_min[0, s], q1, v_p2
+            )
+            if ndirs == 3:
+                sa, sb = s + sy, s - sy  # slots of columns x + 1 and x - 1
+                a_p2 = p2_of[abs(c - np.int64(img[yp, min(x + 1, w - 1)]))]
+                b_p2 = p2_of[abs(c - np.int64(img[yp, max(x - 1, 0)]))]
+                cur_min[1, s] = _path(
+                    cost,
+                    s_row,
+                    x,
+                    add,
+                    state,
+                    (prev0 + span + sa) * n2,
+                    (cur0 + span + s) * n2,
+                    prev_min[1, sa],
+                    q1,
+                    a_p2,
+                )
+                cur_min[2, s] = _path(
+                    cost,
+                    s_row,
+                    x,
+                    add,
+                    state,
+                    (prev0 + 2 * span + sb) * n2,
+                    (cur0 + 2 * span + s) * n2,
+                    prev_min[2, sb],
+                    q1,
+                    b_p2,
+                )
+        if finish:
+            _select_row(s_row, select, disp[y], conf[y], right, left_k, ratio, sub)
 
 
-@_kernel(parallel=True)
-def _vertical_row(
-    vol: np.ndarray, img: np.ndarray, acc: np.ndarray, y: int, step: int,
-    prev: np.ndarray, prev_min: np.ndarray, cur: np.ndarray, cur_min: np.ndarray,
-    p1: int, p2: int, gamma: float,
+@_kernel()
+def _select_row(
+    s_row: np.ndarray,
+    select: tuple[int, float, int, float, float],
+    disp: np.ndarray,
+    conf: np.ndarray,
+    right: np.ndarray,
+    left_k: np.ndarray,
+    ratio: np.ndarray,
+    sub: np.ndarray,
 ) -> None:
-    """One row of the vertical (+ diagonal) paths, parallel over columns.
+    """Winner-take-all on one row of S for both views, uniqueness + left-right check, parabola, confidence.
 
-    Direction j uses dx = (0, -1, +1)[j]: the predecessor of (y, x) is (y - step, x - dx). Sweeping
-    whole rows keeps memory access contiguous (walking single columns costs a TLB miss per step).
+    ``select`` is (min_d, uniqueness, disp12, conf_gain, lr_penalty); ``disp`` / ``conf`` are the
+    output row (NaN / 0 on entry), the other arrays scratch of width w. The right view's disparity
+    at xr is argmin_k S[xr + min_d + k, k]: the same aggregated row read along the diagonal, so no
+    second matching pass is needed. Costs are packed as (S << 16) | k so that one min gives value
+    and index (smallest k on ties) and both the left reduction and the right scatter-min
+    vectorise; ``right`` is stored mirrored (xr at w - 1 - xr) so the scatter runs forwards.
     """
-    h, w, _ = vol.shape
-    ndirs = prev.shape[0]
-    q1 = np.uint16(p1)
-    first_row = y == (0 if step == 1 else h - 1)
-    for x in prange(w):
-        for j in range(ndirs):
-            px = x - (0 if j == 0 else (-1 if j == 1 else 1))
-            if first_row or px < 0 or px >= w:
-                cur_min[j, x] = _start_path(vol[y, x], cur[j, x], acc[y, x], False)
-            else:
-                q2 = _edge_p2(img[y, x], img[y - step, px], p1, p2, gamma)
-                cur_min[j, x] = _path_step(vol[y, x], prev[j, px], prev_min[j, px], cur[j, x], acc[y, x], q1, q2)
-
-
-@_kernel()
-def _aggregate_columns(
-    vol: np.ndarray, img: np.ndarray, acc: np.ndarray, p1: int, p2: int, gamma: float, ndirs: int
-) -> None:
-    """Top-down then bottom-up sweeps over rows (vertical, and diagonals when ``ndirs`` is 3)."""
-    h, w, nd = vol.shape
-    for step in (1, -1):
-        prev = np.full((ndirs, w, nd + 2), _SENTINEL, np.uint16)
-        cur = np.full((ndirs, w, nd + 2), _SENTINEL, np.uint16)
-        prev_min = np.zeros((ndirs, w), np.uint16)
-        cur_min = np.zeros((ndirs, w), np.uint16)
-        y = 0 if step == 1 else h - 1
-        for _ in range(h):
-            _vertical_row(vol, img, acc, y, step, prev, prev_min, cur, cur_min, p1, p2, gamma)
-            prev, cur = cur, prev
-            prev_min, cur_min = cur_min, prev_min
-            y += step
-
-
-@_kernel()
-def _first_step(
-    cost: np.ndarray, prev: np.ndarray, prev_min: np.uint16, cur: np.ndarray, acc: np.ndarray,
-    p1: np.uint16, p2: np.uint16,
-) -> np.uint16:
-    """``_path_step`` for the first path over S: stores instead of adding."""
-    nd = cost.shape[0]
-    jump = np.uint16(prev_min + p2)
-    new_min = np.uint16(0xFFFF)
-    for k in range(nd):
-        best = min(min(prev[k + 1], jump), np.uint16(min(prev[k], prev[k + 2]) + p1))
-        v = np.uint16(cost[k] + best - prev_min)
-        cur[k + 1] = v
-        new_min = min(new_min, v)
-        acc[k] = v
-    return new_min
-
-
-@_kernel()
-def _range_min(row: np.ndarray, lo: int | np.integer, hi: int | np.integer) -> np.uint16:
-    """min(row[lo:hi]) as a vectorised reduction (0xFFFF when empty)."""
-    m = np.uint16(0xFFFF)
-    for k in range(max(lo, 0), hi):
-        m = min(m, row[k])
-    return m
+    min_d, uniqueness, disp12, conf_gain, lr_penalty = select
+    w, nd = s_row.shape
+    right[:] = 0xFFFFFFFF
+    for x in range(w):
+        left_k[x] = -1
+        kmax = min(nd, x - min_d + 1)  # right column x - min_d - k must be >= 0
+        if kmax <= 0:
+            continue
+        mirror = w - 1 - (x - min_d)
+        packed = np.uint32(0xFFFFFFFF)
+        for k in range(kmax):
+            v = np.uint32((np.uint32(s_row[x, k]) << np.uint32(16)) | np.uint32(k))  # cast: numba widens to 64 bits
+            packed = min(packed, v)
+            xr = np.uint64(mirror + k)  # unsigned: no negative-index wraparound, so LLVM vectorises
+            right[xr] = min(right[xr], v)
+        bk = np.int64(packed & np.uint32(0xFFFF))
+        if kmax < nd and bk == kmax - 1:
+            continue  # best at the image edge: the true match may lie left of the right image
+        best = np.float32(s_row[x, bk])
+        # Best outside bk-1..bk+1 in one masked pass, in 16-bit arithmetic so it vectorises 16 wide
+        # (k - (bk - 1) wraps to a large number below bk - 1; the load must not be conditional).
+        rival = np.uint16(0xFFFF)
+        first_near = np.int16(bk - 1)
+        for k in range(kmax):
+            v = s_row[x, k]
+            far = np.uint16(np.int16(k) - first_near) > np.uint16(2)
+            rival = min(rival, v if far else np.uint16(0xFFFF))
+        second = np.float32(rival)
+        if second < 65535.0 and second * (np.float32(1.0) - uniqueness) < best:
+            continue
+        left_k[x] = bk
+        ratio[x] = np.float32(1.0) if second >= 65535.0 else (second - best) / max(second, np.float32(1.0))
+        sub[x] = 0.0
+        if 0 < bk < kmax - 1:
+            lo = np.float32(s_row[x, bk - 1])
+            hi = np.float32(s_row[x, bk + 1])
+            den = lo + hi - np.float32(2.0) * best
+            if den > 0:
+                sub[x] = (lo - hi) / (np.float32(2.0) * den)
+    for x in range(w):
+        bk = left_k[x]
+        if bk < 0:
+            continue
+        rk = np.int64(right[w - 1 - (x - min_d - bk)] & np.uint32(0xFFFF))
+        diff = abs(rk - bk)
+        if disp12 >= 0 and diff > disp12:
+            continue
+        disp[x] = np.float32(min_d + bk) + sub[x]
+        c = min(np.float32(1.0), ratio[x] * np.float32(conf_gain))
+        if diff > 0:
+            c *= np.float32(lr_penalty)
+        conf[x] = c
 
 
 @_kernel(parallel=True)
-def _select(
-    acc: np.ndarray, min_d: int, uniqueness: float, disp12: int, conf_gain: float, lr_penalty: float
+def _aggregate_select(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    img: np.ndarray,
+    acc: np.ndarray,
+    p1: int,
+    p2: int,
+    gamma: float,
+    paths: int,
+    select: tuple[int, float, int, float, float],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Winner-take-all on S for both views, uniqueness + left-right check, parabola, confidence.
+    """8-path (or 4-path) SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
 
-    The right view's disparity at xr is argmin_k S[y, xr + min_d + k, k]: the same aggregated
-    volume read along the diagonal, so no second matching pass is needed. Costs are packed as
-    (S << 16) | k so that one min gives value and index (smallest k on ties) and both the left
-    reduction and the right scatter-min vectorise.
+    Two sweeps run side by side, one top-down and one bottom-up, each carrying half of the paths
+    (``_sweep``). Until they meet in the middle row each stores S on its own half of the image;
+    after that each adds its paths to the half the other one stored, which completes S row by
+    row, and matches the row at once. With ``census`` given, the storing sweeps also compute the
+    cost rows (``_hamming_row``) just before using them. So the cost volume is written once and
+    read back once, S written and read once, with no second volume, no zeroing, and two parallel
+    launches per frame (a parallel launch per row, parallel over columns, cost ~5x more at
+    640x480). The price: this stage uses two cores at most.
     """
-    h, w, nd = acc.shape
-    disp = np.empty((h, w), np.float32)
+    h, w, nd = vol.shape
+    ndirs = 3 if paths == 8 else 1
+    p2_of = _p2_table(p1, p2, gamma)
+    bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint16)  # (sweep, row parity, direction, slot, d)
+    bufs[:, :, :, :, 0] = _SENTINEL
+    bufs[:, :, :, :, nd + 1] = _SENTINEL
+    mins = np.zeros((2, 2, ndirs, w + 2), np.uint16)
+    disp = np.full((h, w), np.nan, np.float32)
     conf = np.zeros((h, w), np.float32)
-    nan = np.float32(np.nan)
-    for y in prange(h):
-        right = np.full(w, 0xFFFFFFFF, np.uint32)
-        left_k = np.full(w, -1, np.int32)
-        ratio = np.zeros(w, np.float32)
-        sub = np.zeros(w, np.float32)
-        for x in range(w):
-            kmax = min(nd, x - min_d + 1)  # right column x - min_d - k must be >= 0
-            if kmax <= 0:
-                continue
-            row = acc[y, x]
-            x0 = x - min_d
-            packed = np.uint32(0xFFFFFFFF)
-            for k in range(kmax):
-                v = (np.uint32(row[k]) << np.uint32(16)) | np.uint32(k)
-                packed = min(packed, v)
-                xr = np.uint64(x0 - k)  # unsigned: no negative-index wraparound, so LLVM vectorises
-                right[xr] = min(right[xr], v)
-            bk = np.int64(packed & np.uint32(0xFFFF))
-            if kmax < nd and bk == kmax - 1:
-                continue  # best at the image edge: the true match may lie left of the right image
-            best = np.float32(row[bk])
-            second = np.float32(min(_range_min(row, 0, bk - 1), _range_min(row, bk + 2, kmax)))
-            if second < 65535.0 and second * (np.float32(1.0) - uniqueness) < best:
-                continue
-            left_k[x] = bk
-            ratio[x] = np.float32(1.0) if second >= 65535.0 else (second - best) / max(second, np.float32(1.0))
-            if 0 < bk < kmax - 1:
-                lo = np.float32(row[bk - 1])
-                hi = np.float32(row[bk + 1])
-                den = lo + hi - np.float32(2.0) * best
-                if den > 0:
-                    sub[x] = (lo - hi) / (np.float32(2.0) * den)
-        for x in range(w):
-            disp[y, x] = nan
-            bk = left_k[x]
-            if bk < 0:
-                continue
-            rk = np.int64(right[x - min_d - bk] & np.uint32(0xFFFF))
-            diff = abs(rk - bk)
-            if disp12 >= 0 and diff > disp12:
-                continue
-            disp[y, x] = np.float32(min_d + bk) + sub[x]
-            c = min(np.float32(1.0), ratio[x] * np.float32(conf_gain))
-            if diff > 0:
-                c *= np.float32(lr_penalty)
-            conf[y, x] = c
+    mid = h // 2
+    for finish in (False, True):
+        for t in prange(2):
+            sy = 1 - 2 * t
+            if t == 0:
+                y0, y1 = (mid, h) if finish else (0, mid)
+            else:
+                y0, y1 = (mid - 1, -1) if finish else (h - 1, mid - 1)
+            _sweep(vol, census, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf)
     return disp, conf
 
 
@@ -476,21 +571,19 @@ def census_sgm(
     Filled pixels get confidence ``gap_confidence``. ``gap_max`` 0 disables interpolation,
     a negative ``occlusion_margin`` / ``border_margin`` disables those fills.
     """
-    _check_inputs(left, right, num_disparities, window_size, census_size, paths)
+    _check_inputs(left, right, min_disparity, num_disparities, window_size, census_size, paths)
     _kernels()
     ch, cw = census_size
     cl = _census(_pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
     cr = _census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)
     vol, acc = _workspace(left.shape, int(num_disparities))
-    _hamming_volume(cl, cr, int(min_disparity), vol)
+    census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol row by row
     if window_size > 1:
+        _hamming_volume(cl, cr, int(min_disparity), vol)
         vol = _box_sum(vol, window_size)
-    p1, p2, gamma = int(P1), int(P2), float(p2_gamma)
-    _aggregate_rows(vol, left, acc, p1, p2, gamma)
-    _aggregate_columns(vol, left, acc, p1, p2, gamma, 1 if paths == 4 else 3)
-    disp, conf = _select(
-        acc, int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), conf_gain, lr_penalty
-    )
+        census = None
+    select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
+    disp, conf = _aggregate_select(vol, census, left, acc, int(P1), int(P2), float(p2_gamma), paths, select)
     if median:
         sentinel = np.float32(-1e9)
         disp = _median3(np.where(np.isnan(disp), sentinel, disp), sentinel)
@@ -522,18 +615,18 @@ _local = threading.local()
 def _workspace(shape: tuple[int, ...], nd: int) -> tuple[np.ndarray, np.ndarray]:
     """Cost and aggregate volumes, kept per thread and reused while the size stays the same.
 
-    Two fresh 80 MB volumes per frame cost ~15 ms of page faults alone at 640x480x128.
+    Fresh volumes per frame (40 + 80 MB at 640x480x128) cost ~10 ms of page faults alone.
     """
     key = (shape[0], shape[1], nd)
     if getattr(_local, "key", None) != key:
         _local.key = key
-        _local.vol = np.empty(key, np.uint16)
+        _local.vol = np.empty(key, np.uint8)
         _local.acc = np.empty(key, np.uint16)
     return _local.vol, _local.acc
 
 
 def _check_inputs(
-    left: np.ndarray, right: np.ndarray, nd: int, window: int, census: tuple[int, int], paths: int
+    left: np.ndarray, right: np.ndarray, min_d: int, nd: int, window: int, census: tuple[int, int], paths: int
 ) -> None:
     """Refuse inputs the kernels would silently mis-handle."""
     if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
@@ -541,6 +634,9 @@ def _check_inputs(
             "census_sgm needs two uint8 grey images of one size, "
             f"got {left.dtype}{left.shape} and {right.dtype}{right.shape}"
         )
+        raise ValueError(msg)
+    if min_d < 0:  # the kernels would index right-image columns past the right border
+        msg = f"min_disparity must be >= 0, got {min_d}"
         raise ValueError(msg)
     if nd < 1:
         msg = f"num_disparities must be >= 1, got {nd}"
@@ -566,10 +662,10 @@ def _box_sum(vol: np.ndarray, window: int) -> np.ndarray:
     h, w, _ = vol.shape
     rows = np.zeros((h, w + 2 * half, vol.shape[2]), np.uint16)
     for dy in range(window):
-        rows += pad[dy:dy + h]
-    out = np.zeros_like(vol)
+        rows += pad[dy : dy + h]
+    out = np.zeros(vol.shape, np.uint16)
     for dx in range(window):
-        out += rows[:, dx:dx + w]
+        out += rows[:, dx : dx + w]
     return out
 
 
