@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -123,6 +124,33 @@ def test_latest_worker_keeps_only_the_newest_waiting_job() -> None:
     wait_until(lambda: len(done) == 2, "the newest job")
     worker.stop()
     assert done == [1, 4] and len(replaced) == 2
+
+
+@pytest.mark.parametrize("parallel", [1, 2])
+def test_latest_worker_runs_at_most_parallel_jobs_at_once(parallel: int) -> None:
+    release = threading.Event()
+    running: list[int] = []
+    most: list[int] = [0]
+    lock = threading.Lock()
+
+    def run(job: int) -> None:
+        with lock:
+            running.append(job)
+            most[0] = max(most[0], len(running))
+        release.wait(5)
+        with lock:
+            running.remove(job)
+
+    worker = LatestWorker(run, lambda: None, capacity=2, threads=2)
+    worker.parallel = parallel
+    worker.submit(1)
+    worker.submit(2)
+    wait_until(lambda: len(running) == parallel, f"{parallel} jobs running")
+    time.sleep(0.2)  # a job that should wait would have started by now
+    assert len(running) == parallel
+    release.set()
+    worker.stop()
+    assert most[0] == parallel
 
 
 def test_config_yaml_lists_every_parameter_with_its_default() -> None:

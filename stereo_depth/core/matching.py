@@ -136,5 +136,12 @@ MATCHERS: dict[str, Callable[[StereoParams], Matcher]] = {
 }
 
 
+def runs_on_one_core(params: StereoParams) -> bool:
+    """OpenCV's SGBM and HH modes aggregate on the calling thread only, so a second frame matched
+    beside the first nearly doubles the rate on two cores (1.8x); BM, SGBM_3WAY and census_sgm spread
+    one frame over the cores already (1.1-1.4x from a second frame; bench/parallel_matching.py)."""
+    return params.matcher == "sgbm" and params.sgbm_mode in (0, 1)
+
+
 def create_matcher(params: StereoParams) -> Matcher:
     return MATCHERS[params.matcher](params)

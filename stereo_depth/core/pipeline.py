@@ -8,6 +8,7 @@ It keeps what depends only on the calibration (rectification maps, pixel rays) a
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -82,26 +83,25 @@ def _check_matchable(image: np.ndarray, params: StereoParams) -> None:
 
 
 class StereoPipeline:
-    """Reusable per-stream processor; not thread-safe for concurrent `process` calls."""
+    """Reusable per-stream processor. `match` may run on several threads at once (each thread matches
+    with a matcher of its own: OpenCV's keep working buffers between calls); the calibration caches
+    are shared."""
 
     def __init__(self, params: StereoParams | None = None) -> None:
-        self._state: tuple[StereoParams, Matcher] = self._build(params or make_params())
+        self._params = (params or make_params()).validate()
+        self._local = threading.local()
         self._camera: StereoCamera | None = None
         self._rays: dict[tuple[object, ...], Rays] = {}
         self._small_camera: tuple[tuple[object, ...], StereoCamera] | None = None
         self.calibrations_built = 0
 
-    @staticmethod
-    def _build(params: StereoParams) -> tuple[StereoParams, Matcher]:
-        return params, create_matcher(_scaled(params.validate(), params.downsample))
-
     @property
     def params(self) -> StereoParams:
-        return self._state[0]
+        return self._params
 
     def set_params(self, params: StereoParams) -> None:
-        """Swap parameters and matcher in one assignment: a frame sees the old set or the new one."""
-        self._state = self._build(params)
+        """Swap parameters in one assignment: a frame sees the old set or the new one."""
+        self._params = params.validate()
 
     def camera_for(self, left: CameraInfo, right: CameraInfo) -> StereoCamera:
         """The StereoCamera for this calibration; rebuilt (maps included) only when it changes."""
@@ -134,7 +134,7 @@ class StereoPipeline:
         The live node publishes the disparity at this point and leaves `add_geometry` to a second
         thread, which may run it while this one matches the next frame.
         """
-        params, matcher = self._state
+        params, matcher = self._matcher()
         t0 = time.perf_counter()
         _check_pair(left, right)
         scale = _grey_scale(left, right)
@@ -173,6 +173,13 @@ class StereoPipeline:
         t3 = time.perf_counter()
         timings = {"rectify": (t1 - t0) * 1000.0, "match": (t2 - t1) * 1000.0, "filter": (t3 - t2) * 1000.0}
         return StereoResult(camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings)
+
+    def _matcher(self) -> tuple[StereoParams, Matcher]:
+        """The current parameters, with this thread's matcher for them."""
+        params, local = self._params, self._local
+        if getattr(local, "params", None) is not params:
+            local.params, local.matcher = params, create_matcher(_scaled(params, params.downsample))
+        return local.params, local.matcher
 
     def add_geometry(self, result: StereoResult, *, want_points: bool = True) -> None:
         """Depth (and the organized points when `want_points`) of a `match` result, when it has a camera.

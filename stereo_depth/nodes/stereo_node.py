@@ -4,12 +4,14 @@ The node most users run: no intermediate topics, so no extra serialization of fu
 Topics and parameters are stereo_image_proc's (see README); `profile:=stereo_image_proc` gives its
 defaults.
 
-Two worker threads form a pipeline: the first rectifies, matches and publishes the disparity (and the
+Two worker stages form a pipeline: the first rectifies, matches and publishes the disparity (and the
 rectified image and confidence); the second turns that disparity into depth and points2 and publishes
 them, while the first already matches the next frame. So the disparity goes out without waiting for
 the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage keeps
 only the newest disparity too: one it could not start before a newer one arrived is dropped and
-counted ("dropped clouds" in diagnostics).
+counted ("dropped clouds" in diagnostics). Where the matcher itself runs on one core (OpenCV SGBM's
+SGBM and HH modes), the first stage matches two frames at once by default (`matching_threads`); a
+frame overtaken by a newer one is dropped, never published after it.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
+from stereo_depth.core.matching import runs_on_one_core
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
 from stereo_depth.outputs import disparity_message
@@ -48,8 +51,10 @@ class StereoNode(StereoIONode):
         "publish_confidence",
         "calibration_check",
         "calibration_check_every_n_frames",
+        "matching_threads",
     )
     WITH_STEREO = True
+    MAX_FRAMES_AT_ONCE = 4
 
     def __init__(self) -> None:
         super().__init__("stereo_node")
@@ -76,16 +81,25 @@ class StereoNode(StereoIONode):
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         result = self.match_pair(left, right, camera)
-        start = time.perf_counter()
-        self._publish_images(header, result, settings, options)
-        timed(stages, "publish", start)
-        self._maybe_check_calibration(header, result, options)
-        want_depth = self.wanted(self._depth, options.publish_depth)
-        want_points = self.wanted(self._points, options.publish_points)
-        if not (want_depth or want_points):
-            return {**result.timings_ms, **stages}
-        self._geometry.submit((header, result, stages, options, want_depth, want_points))
+        with self.outputs_in_order() as newest:
+            if not newest:
+                return None
+            start = time.perf_counter()
+            self._publish_images(header, result, settings, options)
+            timed(stages, "publish", start)
+            self._maybe_check_calibration(header, result, options)
+            want_depth = self.wanted(self._depth, options.publish_depth)
+            want_points = self.wanted(self._points, options.publish_points)
+            if not (want_depth or want_points):
+                return {**result.timings_ms, **stages}
+            self._geometry.submit((header, result, stages, options, want_depth, want_points))
         return None
+
+    def frames_at_once(self, settings: Settings) -> int:
+        assert settings.stereo is not None
+        if settings.options.matching_threads:
+            return settings.options.matching_threads
+        return 2 if runs_on_one_core(settings.stereo) else 1
 
     def _geometry_stage(self, job: tuple[Any, StereoResult, dict[str, float], NodeOptions, bool, bool]) -> None:
         """Second stage: depth and points2 of a published disparity, then the frame is done."""

@@ -85,6 +85,16 @@ class NodeOptions:
             1,
         ),
     )
+    matching_threads: int = field(
+        default=0,
+        metadata=_spec(
+            "Frames matched at once, outputs kept in input order. 0 auto: 2 where the matcher itself runs on "
+            "one core (sgbm_mode 0 SGBM and 1 HH), else 1 (the others spread one frame over the cores already)",
+            0,
+            4,
+            1,
+        ),
+    )
     max_image_pixels: int = field(
         default=DEFAULT_MAX_PIXELS,
         metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),

@@ -1,19 +1,22 @@
 """What the four nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
 
-Subscription callbacks only stamp, count and pair messages; the work runs on one worker thread that
+Subscription callbacks only stamp, count and pair messages; the work runs on a worker thread that
 takes complete sets oldest first from a short queue (`max_waiting_frames`). When frames arrive faster
 than they can be processed the oldest waiting set is dropped (and counted), so latency stays bounded
 instead of a backlog growing; the few waiting places absorb a busy machine's scheduling hiccups, which
-a single slot turns into lost frames even at a rate the node easily sustains.
+a single slot turns into lost frames even at a rate the node easily sustains. A node may process
+several sets at once (`frames_at_once`); its outputs still leave in input order.
 OpenCV releases the GIL, so the executor keeps receiving while a frame is processed.
 """
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from functools import partial
 from typing import Any, TypeVar
 
@@ -52,18 +55,26 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 
 
 class LatestWorker:
-    """Runs jobs on one thread, oldest first; at most `capacity` wait, and one more replaces the oldest
-    waiting job (`on_replaced`). Capacity 1: always the newest job."""
+    """Runs jobs on `threads` threads, oldest first, at most `parallel` at once; at most `capacity`
+    wait, and one more replaces the oldest waiting job (`on_replaced`). Capacity 1: always the newest
+    job. Both limits are read as jobs come and go, so a parameter change applies to the next job."""
 
-    def __init__(self, run: Callable[[Any], None], on_replaced: Callable[[], None], capacity: int = 1) -> None:
+    def __init__(
+        self, run: Callable[[Any], None], on_replaced: Callable[[], None], capacity: int = 1, threads: int = 1
+    ) -> None:
         self._run = run
         self._on_replaced = on_replaced
-        self.capacity = capacity  # read at each submit: a parameter change applies to the next job
+        self.capacity = capacity
+        self.parallel = 1
+        self._running = 0
         self._cond = threading.Condition()
         self._pending: deque[Any] = deque()
         self._stopped = False
-        self._thread = threading.Thread(target=self._loop, name="stereo_depth-worker", daemon=True)
-        self._thread.start()
+        self._threads = [
+            threading.Thread(target=self._loop, name=f"stereo_depth-worker-{i}", daemon=True) for i in range(threads)
+        ]
+        for thread in self._threads:
+            thread.start()
 
     def submit(self, job: Any) -> None:
         with self._cond:
@@ -71,24 +82,31 @@ class LatestWorker:
                 self._pending.popleft()
                 self._on_replaced()
             self._pending.append(job)
-            self._cond.notify()
+            self._cond.notify_all()
 
     def stop(self) -> None:
-        """Let the running job finish, discard the waiting ones, end the thread."""
+        """Let the running jobs finish, discard the waiting ones, end the threads."""
         with self._cond:
             self._stopped = True
             self._pending.clear()
-            self._cond.notify()
-        self._thread.join(timeout=30.0)
+            self._cond.notify_all()
+        for thread in self._threads:
+            thread.join(timeout=30.0)
 
     def _loop(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._stopped or bool(self._pending))
+                self._cond.wait_for(lambda: self._stopped or (bool(self._pending) and self._running < self.parallel))
                 if self._stopped:
                     return
                 job = self._pending.popleft()
-            self._run(job)
+                self._running += 1
+            try:
+                self._run(job)
+            finally:
+                with self._cond:
+                    self._running -= 1
+                    self._cond.notify_all()
 
 
 class StereoIONode(Node):
@@ -97,6 +115,7 @@ class StereoIONode(Node):
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
     OPTIONS: Sequence[str] = ()  # NodeOptions fields this node declares
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
+    MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
@@ -125,8 +144,16 @@ class StereoIONode(Node):
         ]
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._worker = LatestWorker(
-            self._run_frame, partial(self.diagnostics.add_dropped, 1), settings.options.max_waiting_frames
+            self._run_frame,
+            partial(self.diagnostics.add_dropped, 1),
+            settings.options.max_waiting_frames,
+            threads=self.MAX_FRAMES_AT_ONCE,
         )
+        self._worker.parallel = self.frames_at_once(settings)
+        self._sequence = itertools.count(1)  # input order of the matched sets
+        self._order_lock = threading.Lock()
+        self._published = 0  # sequence number of the newest set whose outputs went out
+        self._frame = threading.local()  # the sequence number of the set this worker thread processes
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
@@ -138,6 +165,23 @@ class StereoIONode(Node):
         """Turn one matched set into outputs; return per-stage times (ms) for diagnostics, or None when
         the rest of the frame was handed to another thread, which calls `finish_frame` when done."""
         raise NotImplementedError
+
+    def frames_at_once(self, settings: Settings) -> int:
+        """How many sets may be processed at once (at most MAX_FRAMES_AT_ONCE); 1 unless overridden."""
+        return 1
+
+    @contextmanager
+    def outputs_in_order(self) -> Iterator[bool]:
+        """Hold while a frame publishes. Yields False, and counts the frame as dropped, when a newer
+        set processed beside this one has published already: subscribers never see stamps go back."""
+        with self._order_lock:
+            sequence = self._frame.sequence
+            if sequence < self._published:
+                self.diagnostics.add_dropped(1)
+                yield False
+                return
+            self._published = sequence
+            yield True
 
     def output(self, msg_type: Any, topic: str) -> Publisher:
         return self.create_publisher(msg_type, topic, output_qos())
@@ -257,7 +301,7 @@ class StereoIONode(Node):
         if jumps:
             self._time_jump(topic, stamp)
         for stamp_ns, messages in sets:
-            self._worker.submit((stamp_ns, messages))
+            self._worker.submit((next(self._sequence), stamp_ns, messages))
 
     def _stale_stamp(self, topic: str, stamp_ns: int) -> None:
         self.diagnostics.add_stale()
@@ -278,6 +322,7 @@ class StereoIONode(Node):
         old, new = self._options, settings.options
         self._options = new
         self._worker.capacity = new.max_waiting_frames
+        self._worker.parallel = self.frames_at_once(settings)
         if any(getattr(old, n) != getattr(new, n) for n in ("queue_size", "approximate_sync", "tolerance_ns")):
             with self._sync_lock:
                 self._sync.reset()
@@ -291,8 +336,8 @@ class StereoIONode(Node):
             if everything or subscription.recheck_requested:
                 subscription.recheck()
 
-    def _run_frame(self, job: tuple[int, tuple[Any, ...]]) -> None:
-        stamp_ns, messages = job
+    def _run_frame(self, job: tuple[int, int, tuple[Any, ...]]) -> None:
+        self._frame.sequence, stamp_ns, messages = job
 
         def work() -> None:
             settings = self.parameters.settings
