@@ -262,10 +262,9 @@ def test_runtime_parameter_change_changes_output_and_invalid_is_refused(
 def test_burst_into_two_matching_threads_keeps_input_order_and_counts_every_set(
     ros: RosHarness, live: dict[str, Any], euroc: Pair
 ) -> None:
-    """SGBM's one-core mode gets a second matching thread (matching_threads auto): sets sent faster than
-    one thread matches them come out in input order, the newest among them, and each set is either
-    published or counted as dropped. (The test's own subscriber may miss some of a burst: the node's
-    counters are the reference.)"""
+    """With matching_threads:=2, sets sent faster than the node matches them come out in input order,
+    the newest among them, and each set is either published or counted as dropped. (The test's own
+    subscriber may miss some of a burst: the node's counters are the reference.)"""
     fqn = "/live/stereo_node"
     diagnostics = live["diagnostics"]
 
@@ -276,8 +275,7 @@ def test_burst_into_two_matching_threads_keeps_input_order_and_counts_every_set(
         seen = len(diagnostics.messages)
         wait_until(lambda: len(diagnostics.messages) > seen, "a diagnostics report")
 
-    [ok] = ros.set_parameters(fqn, sgbm_mode=0)
-    assert ok.successful
+    assert all(r.successful for r in ros.set_parameters(fqn, matching_threads=2, sgbm_mode=0))
     keys = ("frames processed", "dropped clouds (depth, points2)", "dropped frames")
     try:
         warm = next(_stamps)
@@ -301,7 +299,7 @@ def test_burst_into_two_matching_threads_keeps_input_order_and_counts_every_set(
         wait_until(lambda: sum(accounted()) == len(sent), "every set accounted for")
         assert accounted()[2] > 0  # the burst outran the node: else there was nothing to order or drop
     finally:
-        ros.set_parameters(fqn, sgbm_mode=2)
+        ros.set_parameters(fqn, matching_threads=1, sgbm_mode=2)
 
 
 def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: Pair) -> None:

@@ -9,9 +9,9 @@ rectified image and confidence); the second turns that disparity into depth and 
 them, while the first already matches the next frame. So the disparity goes out without waiting for
 the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage keeps
 only the newest disparity too: one it could not start before a newer one arrived is dropped and
-counted ("dropped clouds" in diagnostics). Where the matcher itself runs on one core (OpenCV SGBM's
-SGBM and HH modes), the first stage matches two frames at once by default (`matching_threads`); a
-frame overtaken by a newer one is dropped, never published after it.
+counted ("dropped clouds" in diagnostics). With `matching_threads:=2` the first stage matches two
+frames at once, for matchers that leave cores idle; a frame overtaken by a newer one is dropped,
+never published after it.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
-from stereo_depth.core.matching import runs_on_one_core
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
 from stereo_depth.outputs import disparity_message
@@ -96,10 +95,7 @@ class StereoNode(StereoIONode):
         return None
 
     def frames_at_once(self, settings: Settings) -> int:
-        assert settings.stereo is not None
-        if settings.options.matching_threads:
-            return settings.options.matching_threads
-        return 2 if runs_on_one_core(settings.stereo) else 1
+        return settings.options.matching_threads
 
     def _geometry_stage(self, job: tuple[Any, StereoResult, dict[str, float], NodeOptions, bool, bool]) -> None:
         """Second stage: depth and points2 of a published disparity, then the frame is done."""

@@ -1,0 +1,56 @@
+"""OpenCV SGBM's one-core modes matched as two overlapping halves at once must give exactly what
+OpenCV gives for the whole image: stereo_image_proc users switching to us expect its disparity."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.matching import STRIP_OVERLAP, OpenCVMatcher, StripSGBM, create_matcher, opencv_sgbm
+from stereo_depth.core.params import make_params
+from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.scenes import load_scene
+
+from conftest import EUROC, SCENES
+
+
+def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
+    pairs = []
+    for name in ("artl", "cones", "tsukuba"):
+        scene = load_scene(SCENES / name)
+        grey = [cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) if i.ndim == 3 else i for i in (scene.left, scene.right)]
+        pairs.append((name, *grey))
+    left = sorted((EUROC / "left").glob("*.png"))[0]
+    camera = StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", "cam"))
+    raw = [cv2.imread(str(EUROC / side / left.name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]
+    pairs.append(("euroc", camera.rectify(raw[0], "left"), camera.rectify(raw[1], "right")))
+    return pairs
+
+
+PAIRS = grey_pairs()
+
+
+@pytest.mark.parametrize("mode", [0, 1], ids=["SGBM", "HH"])
+@pytest.mark.parametrize(("name", "left", "right"), PAIRS, ids=[p[0] for p in PAIRS])
+def test_halves_equal_opencv_on_the_whole_image(mode: int, name: str, left: np.ndarray, right: np.ndarray) -> None:
+    params = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": mode})
+    matcher = create_matcher(params)
+    assert isinstance(matcher, StripSGBM) and left.shape[0] >= 4 * STRIP_OVERLAP  # the halves are used
+    whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    halves = matcher.compute(left, right).disparity
+    assert np.isfinite(halves).mean() > 0.3
+    np.testing.assert_array_equal(halves, whole.disparity)
+
+
+def test_multi_core_modes_and_small_images_use_opencv_directly() -> None:
+    params = make_params("default")
+    assert params.sgbm_mode == 2 and isinstance(create_matcher(params), OpenCVMatcher)
+    _, left, right = PAIRS[0]
+    params = dataclasses.replace(make_params("stereo_image_proc", {"stereo_algorithm": 1}), disparity_range=32)
+    small_l, small_r = left[: 3 * STRIP_OVERLAP], right[: 3 * STRIP_OVERLAP]
+    whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(small_l, small_r)
+    np.testing.assert_array_equal(create_matcher(params).compute(small_l, small_r).disparity, whole.disparity)
