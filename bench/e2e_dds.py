@@ -459,6 +459,7 @@ def main() -> None:
             all_runs += runs
             rows.append(median_row(runs) if len(runs) > 1 else runs[0])
             print_row(rows[-1])
+    print("diag: the node's own 'dropped frames', warm-up frames included (a few wait for start-up work)")
     print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
     for r in rows:
         print(f"{r['case']:26s}" + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
