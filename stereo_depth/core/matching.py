@@ -7,6 +7,7 @@ between frames; a parameter change builds a new core, never mutates one in use.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -88,7 +89,12 @@ def create_sgbm(params: StereoParams) -> Matcher:
 
 ONE_CORE_SGBM_MODES = (0, 1)  # SGBM and HH; SGBM_3WAY and HH4 spread one image over OpenCV's threads
 STRIP_OVERLAP = 48  # rows each half reaches into the other
-_strip_helpers: list[ThreadPoolExecutor] = []
+
+
+@functools.cache
+def _lower_halves() -> ThreadPoolExecutor:
+    """The threads that match lower halves, shared by every StripSGBM (one per frame matched at once)."""
+    return ThreadPoolExecutor(max_workers=4, thread_name_prefix="sgbm_lower_half")
 
 
 class StripSGBM:
@@ -99,15 +105,13 @@ class StripSGBM:
     other, joins them, and removes speckles over the whole image as OpenCV does inside `compute`.
     Semi-global paths restarted at a half's edge agree with the whole-image ones again within the
     overlap: the joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
-    (test_matching.py), 1.3-1.8x sooner on two cores (bench/parallel_matching.py).
+    (test/test_strip_sgbm.py), 1.3-1.8x sooner on two cores (bench/parallel_matching.py).
     """
 
     def __init__(self, params: StereoParams) -> None:
         self._halves = (opencv_sgbm(params, 0), opencv_sgbm(params, 0))
         self._whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
         self._params = params
-        if not _strip_helpers:
-            _strip_helpers.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="sgbm_lower_half"))
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
         height = left.shape[0]
@@ -115,7 +119,7 @@ class StripSGBM:
             return self._whole.compute(left, right)
         middle, overlap = height // 2, STRIP_OVERLAP
         upper, lower = self._halves
-        lower_half = _strip_helpers[0].submit(lower.compute, left[middle - overlap :], right[middle - overlap :])
+        lower_half = _lower_halves().submit(lower.compute, left[middle - overlap :], right[middle - overlap :])
         raw = np.empty(left.shape[:2], np.int16)
         raw[:middle] = upper.compute(left[: middle + overlap], right[: middle + overlap])[:middle]
         raw[middle:] = lower_half.result()[overlap:]
