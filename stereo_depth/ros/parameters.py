@@ -89,7 +89,7 @@ class NodeOptions:
         default=1,
         metadata=_spec(
             "Frames matched at once, outputs kept in input order. 2 raises the rate of a matcher that leaves "
-            "cores idle (census_sgm: 1.4x on 2 cores, bench/parallel_matching.py) at the cost of latency",
+            "cores idle (census_sgm: 1.3-1.4x on 2 cores, bench/parallel_matching.py) at the cost of latency",
             1,
             4,
             1,
