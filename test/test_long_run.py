@@ -51,11 +51,19 @@ def soak(ros: RosHarness, node: NodeProcess) -> Soak:
 
 
 def test_two_thousand_frames_at_a_sustainable_rate_lose_nothing_and_grow_no_memory(
-    soak: Soak, node: NodeProcess
+    ros: RosHarness, soak: Soak, node: NodeProcess
 ) -> None:
-    rss_before = rss_mb(node.process.pid)
-    window = soak.window(soak.run(SUSTAINABLE_HZ, frames=FRAMES), settle_s=10.0)
-    growth = rss_mb(node.process.pid) - rss_before
+    # As the README advises for runs that must not lose frames: a few waiting places ride out the
+    # machine's scheduling hiccups (a 200 ms stall of a busy 2-core VM would cost the newest-only
+    # default six frames); a node slower than the input still fills them and loses frames.
+    fqn = f"{NS}/stereo_node"
+    assert all(r.successful for r in ros.set_parameters(fqn, max_waiting_frames=10))
+    try:
+        rss_before = rss_mb(node.process.pid)
+        window = soak.window(soak.run(SUSTAINABLE_HZ, frames=FRAMES), settle_s=10.0)
+        growth = rss_mb(node.process.pid) - rss_before
+    finally:
+        ros.set_parameters(fqn, max_waiting_frames=1)
     print(f"\n{FRAMES} frames {WIDTH}x{HEIGHT} at {SUSTAINABLE_HZ} Hz: {window.line()}  rss growth {growth:+.1f} MB")
     assert window.sent == FRAMES
     assert window.lost == 0, window.line()
