@@ -81,12 +81,6 @@ def opencv_sgbm(params: StereoParams, speckle_size: int) -> cv2.StereoSGBM:
     )
 
 
-def create_sgbm(params: StereoParams) -> Matcher:
-    if params.sgbm_mode in ONE_CORE_SGBM_MODES:
-        return StripSGBM(params)
-    return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
-
-
 ONE_CORE_SGBM_MODES = (0, 1)  # SGBM and HH; SGBM_3WAY and HH4 spread one image over OpenCV's threads
 STRIP_OVERLAP = 48  # rows each half reaches into the other
 
@@ -105,28 +99,34 @@ class StripSGBM:
     other, joins them, and removes speckles over the whole image as OpenCV does inside `compute`.
     Semi-global paths restarted at a half's edge agree with the whole-image ones again within the
     overlap: the joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
-    (test/test_strip_sgbm.py), 1.3-1.8x sooner on two cores (bench/parallel_matching.py).
+    (test/test_strip_sgbm.py), 1.3-1.8x sooner on two cores (bench/parallel_matching.py). Images too
+    low to split are matched whole.
     """
 
     def __init__(self, params: StereoParams) -> None:
-        self._halves = (opencv_sgbm(params, 0), opencv_sgbm(params, 0))
-        self._whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
+        self._upper, self._lower = opencv_sgbm(params, 0), opencv_sgbm(params, 0)  # speckles: after joining
         self._params = params
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
         height = left.shape[0]
         if height < 4 * STRIP_OVERLAP:
-            return self._whole.compute(left, right)
-        middle, overlap = height // 2, STRIP_OVERLAP
-        upper, lower = self._halves
-        lower_half = _lower_halves().submit(lower.compute, left[middle - overlap :], right[middle - overlap :])
-        raw = np.empty(left.shape[:2], np.int16)
-        raw[:middle] = upper.compute(left[: middle + overlap], right[: middle + overlap])[:middle]
-        raw[middle:] = lower_half.result()[overlap:]
+            raw = self._upper.compute(left, right)
+        else:
+            middle, overlap = height // 2, STRIP_OVERLAP
+            lower = _lower_halves().submit(self._lower.compute, left[middle - overlap :], right[middle - overlap :])
+            raw = np.empty(left.shape[:2], np.int16)
+            raw[:middle] = self._upper.compute(left[: middle + overlap], right[: middle + overlap])[:middle]
+            raw[middle:] = lower.result()[overlap:]
         p = self._params
         if p.speckle_size > 0:
             cv2.filterSpeckles(raw, (p.min_disparity - 1) * 16, p.speckle_size, 16 * p.speckle_range)
         return MatchResult(fixed_point_to_float(raw, p.min_disparity))
+
+
+def create_sgbm(params: StereoParams) -> Matcher:
+    if params.sgbm_mode in ONE_CORE_SGBM_MODES:
+        return StripSGBM(params)
+    return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
 
 
 def min_image_size(params: StereoParams) -> tuple[int, int]:
