@@ -39,6 +39,7 @@ _READY: list[bool] = []
 
 prange = range  # replaced by numba.prange before any kernel is compiled
 
+_HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
 _SENTINEL = 0x3FFF  # "infinite" path cost in padded disparity slots; two of them still fit in uint16
 
 
@@ -585,21 +586,17 @@ def census_sgm(
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
     disp, conf = _aggregate_select(vol, census, left, acc, int(P1), int(P2), float(p2_gamma), paths, select)
     if median:
-        sentinel = np.float32(-1e9)
-        disp = _median3(np.where(np.isnan(disp), sentinel, disp), sentinel)
-        disp[disp == sentinel] = np.nan
+        disp = _median3(np.where(np.isnan(disp), _HOLE, disp), _HOLE)
+        disp[disp == _HOLE] = np.nan
     if speckle_size > 0:
         disp = _remove_speckles(disp, speckle_size, speckle_range)
     conf[np.isnan(disp)] = 0.0
     if gap_max > 0 or occlusion_margin >= 0 or border_margin >= 0:
         holes = np.isnan(disp)
-        sentinel = np.float32(-1e9)
-        coded = np.where(holes, sentinel, disp).astype(np.float32)
-        closed = _close_gaps(
-            coded, sentinel, int(gap_max), np.float32(gap_tol), int(occlusion_margin), int(border_margin)
-        )
-        filled = holes & (closed != sentinel)
-        disp = np.where(closed == sentinel, np.float32(np.nan), closed).astype(np.float32)
+        coded = np.where(holes, _HOLE, disp).astype(np.float32)
+        closed = _close_gaps(coded, _HOLE, int(gap_max), np.float32(gap_tol), int(occlusion_margin), int(border_margin))
+        filled = holes & (closed != _HOLE)
+        disp = np.where(closed == _HOLE, np.float32(np.nan), closed).astype(np.float32)
         conf[filled] = np.float32(gap_confidence)
     return disp, conf
 
