@@ -1,6 +1,6 @@
 """One scene, every profile: a picture (left | ground truth | each profile) and a table of bad-2 and time.
 
-    .venv/bin/python bench/compare_profiles.py test/data/scenes/cones --out docs/images/profiles_cones.png
+.venv/bin/python bench/compare_profiles.py test/data/scenes/cones --out docs/images/profiles_cones.png
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Does the confidence mean something? bad-2 among confident pixels against bad-2 over all estimates.
 
-    .venv/bin/python bench/confidence.py SCENE_DIR... [--profile quality] [--threshold 0.5]
+.venv/bin/python bench/confidence.py SCENE_DIR... [--profile quality] [--threshold 0.5]
 """
 
 from __future__ import annotations

@@ -48,8 +48,11 @@ def _nodes(context: LaunchContext) -> list[Node]:
         Node(
             executable="rectify_node",
             name=f"rectify_{side}",
-            remappings=[("image", f"{ns}/image_raw"), ("camera_info", f"{ns}/camera_info"),
-                        ("image_rect", f"{ns}/image_rect")],
+            remappings=[
+                ("image", f"{ns}/image_raw"),
+                ("camera_info", f"{ns}/camera_info"),
+                ("image_rect", f"{ns}/image_rect"),
+            ],
             **common,
         )
         for side, ns in cameras.items()
@@ -67,8 +70,12 @@ def _nodes(context: LaunchContext) -> list[Node]:
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([
-        *(DeclareLaunchArgument(name, default_value=default, description=text)
-          for name, (default, text) in ARGUMENTS.items()),
-        OpaqueFunction(function=_nodes),
-    ])
+    return LaunchDescription(
+        [
+            *(
+                DeclareLaunchArgument(name, default_value=default, description=text)
+                for name, (default, text) in ARGUMENTS.items()
+            ),
+            OpaqueFunction(function=_nodes),
+        ]
+    )

@@ -45,6 +45,15 @@ def compiled_census_core() -> None:
     from stereo_depth.core.census_sgm import census_sgm, fill_holes
 
     image = np.zeros((24, 48), np.uint8)
-    disparity, _ = census_sgm(image, image, min_disparity=0, num_disparities=16, window_size=1, P1=20, P2=200,
-                              uniqueness_ratio=3, disp12_max_diff=1)
+    disparity, _ = census_sgm(
+        image,
+        image,
+        min_disparity=0,
+        num_disparities=16,
+        window_size=1,
+        P1=20,
+        P2=200,
+        uniqueness_ratio=3,
+        disp12_max_diff=1,
+    )
     fill_holes(disparity, image)

@@ -126,8 +126,9 @@ class RosHarness:
     def wait_for_nodes(self, processes: Iterable[NodeProcess]) -> None:
         for process in processes:
             wait_until(
-                lambda p=process: (p.name, p.namespace) in self.node.get_node_names_and_namespaces()
-                or p.process.poll() is not None,
+                lambda p=process: (
+                    (p.name, p.namespace) in self.node.get_node_names_and_namespaces() or p.process.poll() is not None
+                ),
                 f"node {process.fqn}",
             )
             assert process.process.poll() is None, f"{process.fqn} exited:\n{process.output()}"

@@ -300,8 +300,19 @@ def encode(image: Image, encoding: str) -> Image:
     )
 
 
-CAMERA_ENCODINGS = ["mono8", "mono16", "mono16_be", "bgr8", "rgb8", "bgra8", "rgba8", "rgb16",
-                    *(f"bayer_{p}8" for p in BAYER), "bayer_rggb16", "bayer_grbg16_be"]
+CAMERA_ENCODINGS = [
+    "mono8",
+    "mono16",
+    "mono16_be",
+    "bgr8",
+    "rgb8",
+    "bgra8",
+    "rgba8",
+    "rgb16",
+    *(f"bayer_{p}8" for p in BAYER),
+    "bayer_rggb16",
+    "bayer_grbg16_be",
+]
 
 
 @pytest.mark.parametrize("encoding", CAMERA_ENCODINGS)
@@ -379,8 +390,9 @@ def test_image_larger_than_max_image_pixels(node: FaultyNode) -> None:
     [ok] = node.ros.set_parameters(fqn, max_image_pixels=50_000)
     assert ok.successful
     try:
-        node.refuses(bad(node.scene, lambda m: None), f"{NS}/left/image_raw", "347x277", "limit of 50000 pixels",
-                     good_next=False)
+        node.refuses(
+            bad(node.scene, lambda m: None), f"{NS}/left/image_raw", "347x277", "limit of 50000 pixels", good_next=False
+        )
     finally:
         node.ros.set_parameters(fqn, max_image_pixels=4096 * 4096)
     node.good_frame_is_exact()

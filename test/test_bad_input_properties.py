@@ -166,4 +166,3 @@ def test_pipeline_raises_only_our_errors_for_any_decoded_pair(
     result = only_our_errors(pipeline.process, left, right, camera, rectified=rectified)
     if result is not None:
         assert result.disparity.shape == (height, width) and result.disparity.dtype == np.float32
-

@@ -134,13 +134,23 @@ def test_yaml_has_the_camera_calibration_parsers_layout(calibration: StereoCalib
     text = camera_info_to_yaml(calibration.right, "right")
     doc = yaml.safe_load(text)
     assert list(doc) == [
-        "image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
-        "distortion_coefficients", "rectification_matrix", "projection_matrix",
+        "image_width",
+        "image_height",
+        "camera_name",
+        "camera_matrix",
+        "distortion_model",
+        "distortion_coefficients",
+        "rectification_matrix",
+        "projection_matrix",
     ]
     assert (doc["image_width"], doc["image_height"], doc["camera_name"]) == (640, 480, "right")
     assert doc["distortion_model"] == "plumb_bob"
-    for key, rows, cols in (("camera_matrix", 3, 3), ("distortion_coefficients", 1, 5),
-                            ("rectification_matrix", 3, 3), ("projection_matrix", 3, 4)):
+    for key, rows, cols in (
+        ("camera_matrix", 3, 3),
+        ("distortion_coefficients", 1, 5),
+        ("rectification_matrix", 3, 3),
+        ("projection_matrix", 3, 4),
+    ):
         assert (doc[key]["rows"], doc[key]["cols"], len(doc[key]["data"])) == (rows, cols, rows * cols)
     assert "  data: [" in text  # flow-style lists, as the C++ emitter writes them
 

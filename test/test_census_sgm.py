@@ -143,7 +143,11 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
     sentinel = np.float32(-1e9)
     coded = np.where(np.isnan(disp), sentinel, disp).astype(np.float32)
     out = module._close_gaps(
-        coded, sentinel, GAPS["gap_max"], np.float32(GAPS["gap_tol"]), GAPS["occlusion_margin"],
+        coded,
+        sentinel,
+        GAPS["gap_max"],
+        np.float32(GAPS["gap_tol"]),
+        GAPS["occlusion_margin"],
         GAPS["border_margin"],
     )
     return np.where(out == sentinel, np.float32(np.nan), out)

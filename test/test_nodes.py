@@ -176,7 +176,10 @@ def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: 
 
     assert (cloud_msg.height, cloud_msg.width) == (height, width)
     assert [(f.name, f.offset, f.datatype, f.count) for f in cloud_msg.fields] == [
-        ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("rgb", 16, 7, 1)
+        ("x", 0, 7, 1),
+        ("y", 4, 7, 1),
+        ("z", 8, 7, 1),
+        ("rgb", 16, 7, 1),
     ]
     assert cloud_msg.point_step == 32 and cloud_msg.row_step == 32 * width and not cloud_msg.is_dense
     assert cloud_msg.header.frame_id == FRAME
@@ -243,7 +246,9 @@ def test_runtime_parameter_change_changes_output_and_invalid_is_refused(
         assert [r.successful for r in refused] == [False] * 4
         assert "P2" in refused[0].reason and "matcher 'magic' is unknown" in refused[2].reason
         assert ros.get_parameters(fqn, "P1", "disparity_range", "matcher") == {
-            "P1": 200.0, "disparity_range": 32, "matcher": "sgbm"
+            "P1": 200.0,
+            "disparity_range": 32,
+            "matcher": "sgbm",
         }
         stamp = next(_stamps)
         live["inputs"].publish(artl, stamp)
@@ -315,8 +320,15 @@ def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: 
 
     values = wait_until(reported, "the bad frame in diagnostics")
     assert "/live/left/image_raw" in values["last error"]  # names the topic
-    for key in ("/live/left/image_raw rate (Hz)", "output rate (Hz)", "match time (ms)", "rectify time (ms)",
-                "latency from stamp (s)", "dropped frames", "frames processed"):
+    for key in (
+        "/live/left/image_raw rate (Hz)",
+        "output rate (Hz)",
+        "match time (ms)",
+        "rectify time (ms)",
+        "latency from stamp (s)",
+        "dropped frames",
+        "frames processed",
+    ):
         assert key in values, key
     good = next(_stamps)
     live["inputs"].publish(artl, good)
@@ -378,8 +390,14 @@ def test_census_core_publishes_confidence_and_the_calibration_check_reports(
     confidence = ros.collector(Image, "/live/confidence")
     wait_until(lambda: confidence.subscription.get_publisher_count() >= 1, "confidence matched")
     quality = make_params("quality")
-    changes = {"matcher": "census_sgm", "correlation_window_size": 1, "P1": quality.P1, "P2": quality.P2,
-               "uniqueness_ratio": quality.uniqueness_ratio, "calibration_check_every_n_frames": 1}
+    changes = {
+        "matcher": "census_sgm",
+        "correlation_window_size": 1,
+        "P1": quality.P1,
+        "P2": quality.P2,
+        "uniqueness_ratio": quality.uniqueness_ratio,
+        "calibration_check_every_n_frames": 1,
+    }
     assert all(r.successful for r in ros.set_parameters(fqn, **changes))
     try:
         stamp = next(_stamps)

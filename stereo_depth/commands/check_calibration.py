@@ -28,7 +28,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
     parser.add_argument("--namespace", help="which stereo set to read when the bag holds several")
     parser.add_argument(
-        "--camera-info", type=Path, metavar="DIR",
+        "--camera-info",
+        type=Path,
+        metavar="DIR",
         help="check DIR/left.yaml and DIR/right.yaml (camera_info files) instead of the bag's camera_info",
     )
     parser.add_argument("--every", type=int, default=1, metavar="N", help="check every Nth frame (default 1)")
@@ -57,7 +59,8 @@ def check_bag(
             left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
             if not reader.topics.rectified:
                 left_info, right_info = infos or (
-                    camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info)
+                    camera_info_from_msg(frame.left_info),
+                    camera_info_from_msg(frame.right_info),
                 )
                 if camera is None or camera.key() != (left_info.key(), right_info.key()):
                     camera = StereoCamera(left_info, right_info)

@@ -182,12 +182,27 @@ def calibrate_stereo(views: Views, board: Board, min_views: int = MIN_VIEWS) -> 
     rms_l, k_l, d_l, _, _ = cv2.calibrateCamera(objects, views.left, size, None, None)
     rms_r, k_r, d_r, _, _ = cv2.calibrateCamera(objects, views.right, size, None, None)
     rms, _, _, _, _, rotation, translation, _, _ = cv2.stereoCalibrate(
-        objects, views.left, views.right, k_l, d_l, k_r, d_r, size,
-        flags=cv2.CALIB_FIX_INTRINSIC, criteria=_SUBPIX_CRITERIA,
+        objects,
+        views.left,
+        views.right,
+        k_l,
+        d_l,
+        k_r,
+        d_r,
+        size,
+        flags=cv2.CALIB_FIX_INTRINSIC,
+        criteria=_SUBPIX_CRITERIA,
     )
     r_l, r_r, p_l, p_r, _, _, _ = cv2.stereoRectify(
-        k_l, d_l, k_r, d_r, size, rotation, translation.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+        k_l,
+        d_l,
+        k_r,
+        d_r,
+        size,
+        rotation,
+        translation.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=0,
     )
     width, height = size
     return StereoCalibration(

@@ -91,8 +91,14 @@ def _matched_points(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np
     if len(start_l) == 0:
         return start_l, start_r
     refined, status, _ = cv2.calcOpticalFlowPyrLK(
-        left, right, start_l, start_r.copy(), winSize=LK_WINDOW, maxLevel=0,
-        criteria=_LK_CRITERIA, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+        left,
+        right,
+        start_l,
+        start_r.copy(),
+        winSize=LK_WINDOW,
+        maxLevel=0,
+        criteria=_LK_CRITERIA,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
     )
     tracked = status.ravel() == 1
     return start_l[tracked], refined[tracked]

@@ -58,4 +58,3 @@ def depth_to_points(depth: np.ndarray, rays: Rays, out: np.ndarray | None = None
     np.multiply(depth, rays.y, out=out[:, :, 1])
     out[:, :, 2] = depth
     return out
-

@@ -277,8 +277,10 @@ def render_config_yaml() -> str:
         "    profile: default\n"
     ]
     sections = (
-        ("processing (stereo_node, disparity_node); stereo_image_proc's names where the meaning is the same",
-         StereoParams),
+        (
+            "processing (stereo_node, disparity_node); stereo_image_proc's names where the meaning is the same",
+            StereoParams,
+        ),
         ("node: inputs, sync, QoS, outputs (each node declares the ones it uses)", NodeOptions),
     )
     for title, cls in sections:
