@@ -140,8 +140,8 @@ def run_publisher(args: argparse.Namespace) -> None:
         delay = start + i / args.rate - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        for pub, data in zip(pubs, messages, strict=True):
-            pub.publish(data)
+        for k in args.order:
+            pubs[int(k)].publish(messages[int(k)])
     time.sleep(0.5)
     node.destroy_node()
     rclpy.try_shutdown()
@@ -277,6 +277,8 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path) -> dict[str, A
                 str(case.rate_hz),
                 "--frames",
                 str(args.frames),
+                "--order",
+                args.order,
             ],
             env,
             workdir / f"{case.name}.publisher.log",
@@ -416,12 +418,14 @@ def main() -> None:
     pub.add_argument("--height", type=int, default=480)
     pub.add_argument("--rate", type=float, default=30.0)
     pub.add_argument("--frames", type=int, default=300)
+    pub.add_argument("--order", default="0123")
     mon = sub.add_parser("monitor")
     mon.add_argument("--out", required=True)
     mon.add_argument("--no-points", dest="points", action="store_false")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     parser.add_argument("--repeats", type=int, default=1, help="runs per case; the table shows medians")
     parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--order", default="0123")
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
     parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
     parser.add_argument("--domain-id", default=os.environ.get("ROS_DOMAIN_ID", "15"))

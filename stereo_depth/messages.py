@@ -217,6 +217,15 @@ def camera_info_from_msg(msg: Any) -> CameraInfo:
     )
 
 
+def same_calibration(a: Any, b: Any) -> bool:
+    """Whether two CameraInfo messages (rclpy or rosbags) describe one calibration, stamps aside: the
+    synchronizer lets the last camera_info stand in for a lost one only while this holds."""
+    scalars = ("width", "height", "distortion_model", "binning_x", "binning_y")
+    if any(getattr(a, name) != getattr(b, name) for name in scalars) or a.header.frame_id != b.header.frame_id:
+        return False
+    return all(np.array_equal(np.asarray(getattr(a, name)), np.asarray(getattr(b, name))) for name in "dkrp")
+
+
 def camera_info_to_msg(types: MessageTypes, header: Any, info: CameraInfo) -> Any:
     roi = types.RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return types.CameraInfo(

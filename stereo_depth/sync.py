@@ -5,6 +5,17 @@ Pure Python, no ROS import: the live nodes and the offline bag reader pair frame
 - exact: a set is the messages of every input that carry the same stamp;
 - approximate: one message per input whose stamps differ by at most `tolerance_ns`.
 
+Calibration inputs (camera_info) are paired differently from images, because over DDS they are the
+messages most often lost: a reliable writer repairs a small sample only after its next periodic
+heartbeat, by when its history has often moved on, and the transport drops the small samples first
+when a burst of image fragments fills it (measured: bench/e2e_dds.py, README "Inputs over DDS").
+So `calibrations` maps each camera_info input to the input whose stamp it carries; the other inputs
+(images, disparity) are paired as above, and each camera_info joins its image by stamp. When that
+exact message is missing once the camera_info topic has moved past the stamp, or once an image queue
+is full (a set waits at most `queue_size` frames), the last camera_info serves instead (counted in
+`substituted`), unless the calibration changed around that stamp (the set is dropped then, counted in
+`calibration_unknown`). A camera_info that comes after its set went out is counted as `late`, never as an error.
+
 Queues are bounded (`queue_size` per input); a set never waits behind an older, incomplete one: when a
 set is emitted, everything older is dropped and counted. A stamp that goes back by more than
 `time_jump_ns` (a looping bag, a restarted driver) clears the queues instead of stalling them.
@@ -13,10 +24,14 @@ set is emitted, everything older is dropped and counted. A stamp that goes back 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from stereo_depth.errors import ParameterError
+
+Stamped = tuple[int, Any]
+Choice = tuple[Stamped, bool] | None  # a camera_info and whether its stamp is the set's; None: unknown
 
 
 @dataclass
@@ -26,6 +41,35 @@ class SyncCounters:
     stale: int = 0  # messages older than the last emitted set
     time_jumps: int = 0
     dropped_by_input: list[int] = field(default_factory=list)
+    substituted: list[int] = field(default_factory=list)  # per input: sets that took the last camera_info
+    late: list[int] = field(default_factory=list)  # per input: camera_infos that came after their set
+    calibration_unknown: int = 0  # sets dropped: camera_info missing and the calibration changed there
+
+    def copy(self) -> SyncCounters:
+        return replace(
+            self, dropped_by_input=list(self.dropped_by_input), substituted=list(self.substituted), late=list(self.late)
+        )
+
+    def since(self, before: SyncCounters) -> SyncCounters:
+        """What happened between `before` (a copy) and now, counter by counter."""
+        return SyncCounters(
+            matched=self.matched - before.matched,
+            dropped=self.dropped - before.dropped,
+            stale=self.stale - before.stale,
+            time_jumps=self.time_jumps - before.time_jumps,
+            dropped_by_input=_minus(self.dropped_by_input, before.dropped_by_input),
+            substituted=_minus(self.substituted, before.substituted),
+            late=_minus(self.late, before.late),
+            calibration_unknown=self.calibration_unknown - before.calibration_unknown,
+        )
+
+
+def _minus(now: list[int], before: list[int]) -> list[int]:
+    return [a - b for a, b in zip(now, before, strict=True)]
+
+
+def _always_same(_a: Any, _b: Any) -> bool:
+    return True
 
 
 class Synchronizer:
@@ -36,6 +80,9 @@ class Synchronizer:
         approximate: bool = False,
         tolerance_ns: int = 0,
         time_jump_ns: int = 1_000_000_000,
+        *,
+        calibrations: Mapping[int, int] | None = None,
+        same_calibration: Callable[[Any, Any], bool] = _always_same,
     ) -> None:
         if not 2 <= n_inputs <= 4:
             msg = f"a synchronizer takes 2 to 4 inputs, not {n_inputs}"
@@ -46,14 +93,23 @@ class Synchronizer:
         if tolerance_ns < 0:
             msg = f"approximate sync tolerance {tolerance_ns} ns must not be negative"
             raise ParameterError(msg)
+        self.calibrations = dict(calibrations or {})
+        if any(
+            not (0 < i < n_inputs and 0 <= j < n_inputs) or j in self.calibrations for i, j in self.calibrations.items()
+        ):
+            msg = f"calibrations {self.calibrations} must map camera_info inputs (not input 0) to image inputs"
+            raise ParameterError(msg)
         self.n_inputs = n_inputs
         self.queue_size = queue_size
         self.approximate = approximate
         self.tolerance_ns = tolerance_ns if approximate else 0
         self.time_jump_ns = time_jump_ns
-        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(n_inputs)]
+        self.same_calibration = same_calibration
+        self._primaries = [i for i in range(n_inputs) if i not in self.calibrations]
+        self._queues: list[deque[Stamped]] = [deque() for _ in range(n_inputs)]
+        self._last_used: dict[int, Stamped] = {}  # per camera_info input: the newest it knows before the queue
         self._last_emitted: int | None = None
-        self.counters = SyncCounters(dropped_by_input=[0] * n_inputs)
+        self.counters = SyncCounters(dropped_by_input=[0] * n_inputs, substituted=[0] * n_inputs, late=[0] * n_inputs)
 
     def add(self, index: int, stamp_ns: int, message: Any) -> list[tuple[int, tuple[Any, ...]]]:
         """Queue one message; returns the sets it completed as (stamp of the first input, messages)."""
@@ -61,6 +117,9 @@ class Synchronizer:
             if self._last_emitted - stamp_ns > self.time_jump_ns:
                 self.reset()
                 self.counters.time_jumps += 1
+            elif index in self.calibrations:
+                self._late_calibration(index, stamp_ns, message)
+                return []
             else:
                 self.counters.stale += 1
                 return []
@@ -73,15 +132,19 @@ class Synchronizer:
         else:
             queue.append((stamp_ns, message))
         while len(queue) > self.queue_size:
-            queue.popleft()
-            self._drop(index)
-        return self._collect()
+            self._forget(index, queue.popleft())
+        return self._collect(final=False)
+
+    def flush(self) -> list[tuple[int, tuple[Any, ...]]]:
+        """End of input (a bag's last message): sets that only wait for camera_info go out now."""
+        return self._collect(final=True)
 
     def reset(self) -> None:
         for i, queue in enumerate(self._queues):
             for _ in queue:
                 self._drop(i)
             queue.clear()
+        self._last_used.clear()
         self._last_emitted = None
 
     def pending(self) -> int:
@@ -91,52 +154,125 @@ class Synchronizer:
         self.counters.dropped += 1
         self.counters.dropped_by_input[index] += 1
 
-    def _collect(self) -> list[tuple[int, tuple[Any, ...]]]:
+    def _forget(self, index: int, item: Stamped) -> None:
+        """A message leaves its queue unused; a camera_info stays known as the newest calibration."""
+        self._drop(index)
+        if index in self.calibrations:
+            self._remember(index, item)
+
+    def _remember(self, index: int, item: Stamped) -> None:
+        known = self._last_used.get(index)
+        if known is None or item[0] > known[0]:
+            self._last_used[index] = item
+
+    def _late_calibration(self, index: int, stamp_ns: int, message: Any) -> None:
+        self.counters.late[index] += 1
+        self._remember(index, (stamp_ns, message))
+
+    def _collect(self, final: bool) -> list[tuple[int, tuple[Any, ...]]]:
         out: list[tuple[int, tuple[Any, ...]]] = []
         while True:
             found = self._find_exact() if not self.approximate else self._find_approximate()
             if found is None:
                 return out
-            out.append(self._emit(found))
+            full = any(len(self._queues[i]) >= self.queue_size for i in self._primaries)
+            choice = self._choose_calibrations(found, force=final or full)
+            if choice is None:
+                return out  # waiting for a camera_info that may still come
+            emitted = self._emit(found, choice)
+            if emitted is not None:
+                out.append(emitted)
 
-    def _find_exact(self) -> list[int] | None:
-        """Newest stamp that every input has, as the position in each queue."""
-        common = set.intersection(*({s for s, _ in q} for q in self._queues))
+    def _find_exact(self) -> dict[int, int] | None:
+        """Oldest stamp that every image input has, as the position in each queue."""
+        common = sorted(set.intersection(*({s for s, _ in self._queues[i]} for i in self._primaries)))
         if not common:
             return None
-        stamp = max(common)
-        return [next(i for i, (s, _) in enumerate(q) if s == stamp) for q in self._queues]
+        stamp = common[0]
+        return {i: next(p for p, (s, _) in enumerate(self._queues[i]) if s == stamp) for i in self._primaries}
 
-    def _find_approximate(self) -> list[int] | None:
+    def _find_approximate(self) -> dict[int, int] | None:
         """Heads-based search: drop heads that can no longer match, else pick the closest per input."""
-        while all(self._queues):
-            heads = [q[0][0] for q in self._queues]
-            pivot = max(heads)
-            oldest = min(range(self.n_inputs), key=lambda i: heads[i])
+        queues = {i: self._queues[i] for i in self._primaries}
+        while all(queues.values()):
+            heads = {i: q[0][0] for i, q in queues.items()}
+            pivot = max(heads.values())
+            oldest = min(heads, key=lambda i: heads[i])
             if pivot - heads[oldest] > self.tolerance_ns:
                 # Any set with this head also needs a message at or after `pivot`: it can never match.
-                self._queues[oldest].popleft()
                 self._drop(oldest)
+                queues[oldest].popleft()
                 continue
-            return [
-                min(
-                    (i for i, (s, _) in enumerate(q) if abs(s - pivot) <= self.tolerance_ns),
-                    key=lambda i, q=q: abs(q[i][0] - pivot),  # type: ignore[misc]
+            return {
+                i: min(
+                    (p for p, (s, _) in enumerate(q) if abs(s - pivot) <= self.tolerance_ns),
+                    key=lambda p, q=q: abs(q[p][0] - pivot),  # type: ignore[misc]
                 )
-                for q in self._queues
-            ]
+                for i, q in queues.items()
+            }
         return None
 
-    def _emit(self, positions: list[int]) -> tuple[int, tuple[Any, ...]]:
-        """Pop the chosen message of each input; everything older in that input is dropped."""
-        stamps, messages = [], []
-        for index, (queue, position) in enumerate(zip(self._queues, positions, strict=True)):
+    def _choose_calibrations(self, positions: dict[int, int], force: bool) -> dict[int, Choice] | None:
+        """Per camera_info input: the message for the set's stamp (exact: True), the last one when that
+        will not come (False), or None when the calibration changed there and the set cannot be used;
+        None overall: wait for it."""
+        choice: dict[int, Choice] = {}
+        for index, image in self.calibrations.items():
+            stamp = self._queues[image][positions[image]][0]
+            queue = self._queues[index]
+            near = [item for item in queue if abs(item[0] - stamp) <= self.tolerance_ns]
+            if near:
+                choice[index] = (min(near, key=lambda item: abs(item[0] - stamp)), True)
+                continue
+            if not force and not any(s > stamp for s, _ in queue):
+                return None
+            substitute = self._substitute(index, stamp)
+            choice[index] = None if substitute is None else (substitute, False)
+        return choice
+
+    def _substitute(self, index: int, stamp: int) -> Stamped | None:
+        """The newest camera_info before `stamp`, if the calibration did not change across `stamp`."""
+        known = [*([self._last_used[index]] if index in self._last_used else []), *self._queues[index]]
+        before = [item for item in known if item[0] < stamp]
+        after = [item for item in known if item[0] > stamp]
+        last = max(before, key=lambda item: item[0], default=None)
+        following = min(after, key=lambda item: item[0], default=None)
+        if last is not None and following is not None and not self.same_calibration(last[1], following[1]):
+            return None
+        return last if last is not None else following
+
+    def _emit(self, positions: dict[int, int], calibrations: dict[int, Choice]) -> tuple[int, tuple[Any, ...]] | None:
+        """Pop the chosen message of each input; everything older in that input is dropped. None when a
+        camera_info could not be chosen: the images are dropped then."""
+        stamps = [self._queues[i][p][0] for i, p in positions.items()]  # input 0 first
+        messages: list[Any] = [None] * self.n_inputs
+        for index, position in positions.items():
+            queue = self._queues[index]
             for _ in range(position):
-                queue.popleft()
                 self._drop(index)
-            stamp, message = queue.popleft()
-            stamps.append(stamp)
-            messages.append(message)
-        self.counters.matched += 1
+                queue.popleft()
+            messages[index] = queue.popleft()[1]
         self._last_emitted = max(stamps)
+        unknown = False
+        for index, choice in calibrations.items():
+            chosen, exact = choice if choice is not None else (None, False)
+            queue = self._queues[index]
+            until = max(self._last_emitted, chosen[0] if exact and chosen is not None else 0)
+            while queue and queue[0][0] <= until:
+                item = queue.popleft()
+                if item is not chosen:
+                    self._forget(index, item)
+            if chosen is None:
+                unknown = True
+                continue
+            if not exact:
+                self.counters.substituted[index] += 1
+            self._remember(index, chosen)
+            messages[index] = chosen[1]
+        if unknown:
+            self.counters.calibration_unknown += 1
+            for index in positions:
+                self._drop(index)
+            return None
+        self.counters.matched += 1
         return stamps[0], tuple(messages)

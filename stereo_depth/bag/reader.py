@@ -18,10 +18,11 @@ from rosbags.rosbag2 import Reader, ReaderError
 
 from stereo_depth.bag.types import deserialize
 from stereo_depth.errors import BagError
-from stereo_depth.messages import stamp_to_ns
+from stereo_depth.messages import same_calibration, stamp_to_ns
 from stereo_depth.sync import SyncCounters, Synchronizer
 
 ROLES = ("left_image", "left_info", "right_image", "right_info")
+CALIBRATION_OF_IMAGE = {1: 0, 3: 2}  # camera_info role -> image role (see sync.Synchronizer)
 SUFFIXES = {
     "image_raw": ("left/image_raw", "left/camera_info", "right/image_raw", "right/camera_info"),
     "image_rect": ("left/image_rect", "left/camera_info", "right/image_rect", "right/camera_info"),
@@ -165,7 +166,14 @@ class StereoBagReader:
 
     def frames(self) -> Iterator[StereoMessages]:
         """Matched sets in recording order; counts in `stats` what could not be paired."""
-        sync = Synchronizer(len(ROLES), self.policy.queue_size, self.policy.approximate, self.policy.tolerance_ns)
+        sync = Synchronizer(
+            len(ROLES),
+            self.policy.queue_size,
+            self.policy.approximate,
+            self.policy.tolerance_ns,
+            calibrations=CALIBRATION_OF_IMAGE,
+            same_calibration=same_calibration,
+        )
         self.stats.sync = sync.counters
         role_of = {name: i for i, name in enumerate(self.topics.names)}
         for topic, message in self._messages(list(role_of)):
@@ -174,6 +182,9 @@ class StereoBagReader:
             for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
                 self.stats.matched += 1
                 yield StereoMessages(stamp, *msgs)
+        for stamp, msgs in sync.flush():
+            self.stats.matched += 1
+            yield StereoMessages(stamp, *msgs)
         self.stats.unmatched_at_end = sync.pending()
 
     def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:

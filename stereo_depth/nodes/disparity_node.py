@@ -21,6 +21,7 @@ class DisparityNode(StereoIONode):
         ("right/image_rect", Image),
         ("right/camera_info", CameraInfo),
     )
+    CALIBRATIONS = ((1, 0), (3, 2))
     OPTIONS = INPUT_OPTIONS
     WITH_STEREO = True
 

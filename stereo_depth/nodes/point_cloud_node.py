@@ -28,6 +28,7 @@ class PointCloudNode(StereoIONode):
         ("right/camera_info", CameraInfo),
         ("disparity", DisparityImage),
     )
+    CALIBRATIONS = ((1, 0), (2, 3))  # the disparity carries the left image's stamp
     OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS)
 
     def __init__(self) -> None:

@@ -24,6 +24,7 @@ from stereo_depth.ros.types import RCLPY_TYPES
 
 class RectifyNode(StereoIONode):
     INPUTS = (("image", Image), ("camera_info", CameraInfo))
+    CALIBRATIONS = ((1, 0),)
     OPTIONS = (*INPUT_OPTIONS, "interpolation")
 
     def __init__(self) -> None:

@@ -40,6 +40,7 @@ class StereoNode(StereoIONode):
         ("right/image_raw", Image),
         ("right/camera_info", CameraInfo),
     )
+    CALIBRATIONS = ((1, 0), (3, 2))
     OPTIONS = (
         *INPUT_OPTIONS,
         *CLOUD_OPTIONS,

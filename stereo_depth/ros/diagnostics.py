@@ -16,10 +16,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from stereo_depth.core.calibration_check import CalibrationCheck
 from stereo_depth.core.pipeline import STAGES
+from stereo_depth.sync import SyncCounters
 
 WINDOW = 50  # messages per input used to estimate rates
 SILENT_AFTER_S = 3.0  # an input quiet this long while the others arrive is reported by name
 RECENT_FRAMES = 30  # frames averaged for stage times and latency
+README_DDS = 'see README "Inputs and outputs over DDS"'
 
 
 @dataclass
@@ -32,6 +34,9 @@ class RateMonitor:
 
     stamps: deque[tuple[int, float]] = field(default_factory=lambda: deque(maxlen=WINDOW))
     lost_reported: int = 0  # DDS "message lost" events
+    unmatched: int = 0  # received, but never part of a set (no partner, queue overflow, stale stamp)
+    substituted: int = 0  # camera_info: sets that took the last one because theirs was missing
+    late: int = 0  # camera_info: arrived after its set went out (a DDS repair)
 
     def add(self, stamp_ns: int, arrival_s: float) -> None:
         if self.stamps and stamp_ns <= self.stamps[-1][0]:
@@ -73,6 +78,8 @@ class NodeDiagnostics:
         self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
         self.dropped_clouds = 0  # disparities published whose depth / points2 a newer frame replaced
         self.unmatched = 0  # messages the synchronizer discarded (no partner, queue overflow, stale)
+        self.calibration_unknown = 0  # sets dropped: camera_info missing while the calibration changed
+        self._reported: dict[str, int] = {}  # counters at the previous report: what grew since names the bottleneck
         self.processed = 0
         self.last_error = ""
         self._last_error_at = 0.0
@@ -88,13 +95,19 @@ class NodeDiagnostics:
             self.inputs[topic].add(stamp_ns, now)
             self._last_arrival[topic] = now
 
-    def add_stale(self) -> None:
+    def sync_changed(self, change: SyncCounters) -> None:
+        """What one message did to the synchronizer (`SyncCounters.since`), per input topic."""
         with self._lock:
-            self.stale += 1
-
-    def add_time_jump(self) -> None:
-        with self._lock:
-            self.time_jumps += 1
+            self.stale += change.stale
+            self.time_jumps += change.time_jumps
+            self.unmatched += change.dropped + change.stale
+            self.calibration_unknown += change.calibration_unknown
+            for monitor, dropped, substituted, late in zip(
+                self.inputs.values(), change.dropped_by_input, change.substituted, change.late, strict=True
+            ):
+                monitor.unmatched += dropped
+                monitor.substituted += substituted
+                monitor.late += late
 
     def calibrations_loaded(self, count: int) -> None:
         with self._lock:
@@ -141,11 +154,6 @@ class NodeDiagnostics:
     def add_dropped_cloud(self) -> None:
         with self._lock:
             self.dropped_clouds += 1
-
-    def add_unmatched(self, count: int) -> None:
-        if count:
-            with self._lock:
-                self.unmatched += count
 
     def error(self, text: str) -> None:
         with self._lock:
@@ -196,6 +204,10 @@ class NodeDiagnostics:
             values.append((f"{topic} sender rate from stamps (Hz)", f"{monitor.sender_hz():.2f}"))
             values.append((f"{topic} missing (recent window)", str(monitor.missing())))
             values.append((f"{topic} lost (DDS)", str(monitor.lost_reported)))
+            values.append((f"{topic} unmatched", str(monitor.unmatched)))
+            if monitor.substituted or monitor.late:
+                values.append((f"{topic} missing, last one used", str(monitor.substituted)))
+                values.append((f"{topic} late (after its set)", str(monitor.late)))
         outputs = [t for t in self._outputs if now - t <= 2.0]
         rate = (len(outputs) - 1) / max(outputs[-1] - outputs[0], 1e-9) if len(outputs) > 1 else 0.0
         values.append(("output rate (Hz)", f"{rate:.2f}"))
@@ -209,6 +221,8 @@ class NodeDiagnostics:
         values.append(("dropped frames", str(self.dropped)))
         values.append(("dropped clouds (depth, points2)", str(self.dropped_clouds)))
         values.append(("unmatched input messages", str(self.unmatched)))
+        values.append(("sets without calibration (camera_info lost while it changed)", str(self.calibration_unknown)))
+        values.append(("bottleneck", self._bottleneck()))
         values.append(("stale or repeated stamps", str(self.stale)))
         values.append(("time jumps (pairing restarted)", str(self.time_jumps)))
         values.append(("calibrations loaded", str(self.calibrations)))
@@ -224,5 +238,23 @@ class NodeDiagnostics:
             return DiagnosticStatus.WARN, silence
         lossy = [t for t, m in self.inputs.items() if m.missing()]
         if lossy:
-            return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}"
+            return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}; {README_DDS}"
         return DiagnosticStatus.OK, "ok"
+
+    def _bottleneck(self) -> str:
+        """Where frames were lost since the previous report: inputs (per topic), matching (sets replaced
+        before the worker took them), or the cloud stage (depth/points2 replaced); the worst named first."""
+        counts = {
+            f"input {t} (lost in DDS, unmatched or stood in for)": m.lost_reported + m.unmatched + m.substituted
+            for t, m in self.inputs.items()
+        }
+        counts["matching slower than the input (dropped frames)"] = self.dropped
+        counts["depth/points2 stage slower than the input (dropped clouds; see publish_points time)"] = (
+            self.dropped_clouds
+        )
+        grown = {what: n - self._reported.get(what, 0) for what, n in counts.items()}
+        self._reported = counts
+        worst = sorted((n, what) for what, n in grown.items() if n > 0)
+        if not worst:
+            return "none"
+        return "; ".join(f"{what}: {n}" for n, what in reversed(worst)) + f"; {README_DDS}"

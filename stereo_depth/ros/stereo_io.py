@@ -40,6 +40,7 @@ from stereo_depth.messages import (
     depth_to_cloud,
     image_to_pipeline,
     make_header,
+    same_calibration,
     stamp_to_ns,
 )
 from stereo_depth.ros.diagnostics import NodeDiagnostics
@@ -52,6 +53,7 @@ from stereo_depth.sync import Synchronizer
 T = TypeVar("T")
 QOS_RECHECK_S = 0.25  # reaction to a publisher's matched / incompatible-QoS event
 QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
+IDLE_FLUSH_S = 0.5  # no input for this long: sets waiting only for a camera_info go out
 
 
 class LatestWorker:
@@ -113,6 +115,7 @@ class StereoIONode(Node):
     """Base of the four nodes. A subclass names its inputs and options and implements `process`."""
 
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
+    CALIBRATIONS: Sequence[tuple[int, int]] = ()  # (camera_info input, the input whose stamp it carries)
     OPTIONS: Sequence[str] = ()  # NodeOptions fields this node declares
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
     MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
@@ -130,6 +133,7 @@ class StereoIONode(Node):
         self._options = settings.options
         self._sync_lock = threading.Lock()
         self._sync = self._new_sync(settings.options)
+        self._last_input_s = 0.0  # monotonic time of the newest input message; 0 once flushed
         self._inputs = [
             AdaptiveSubscription(
                 self,
@@ -156,6 +160,7 @@ class StereoIONode(Node):
         self._frame = threading.local()  # the sequence number of the set this worker thread processes
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
+        self.create_timer(IDLE_FLUSH_S, self._flush_when_idle)
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
         self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
 
@@ -277,6 +282,8 @@ class StereoIONode(Node):
             queue_size=options.queue_size,
             approximate=options.approximate_sync,
             tolerance_ns=options.tolerance_ns,
+            calibrations=dict(self.CALIBRATIONS),
+            same_calibration=same_calibration,
         )
 
     def _on_message(self, index: int, msg: Any) -> None:
@@ -289,29 +296,37 @@ class StereoIONode(Node):
             )
             return
         self.diagnostics.input_received(topic, stamp)
+        self._last_input_s = time.monotonic()
+        self._pair(lambda sync: sync.add(index, stamp, msg), topic, stamp)
+
+    def _pair(self, step: Callable[[Synchronizer], list[tuple[int, tuple[Any, ...]]]], topic: str, stamp: int) -> None:
+        """One synchronizer step; its counters go to diagnostics per topic, the sets to the worker."""
         with self._sync_lock:
-            counters = self._sync.counters
-            stale, jumps = counters.stale, counters.time_jumps
-            before = counters.dropped + counters.stale
-            sets = self._sync.add(index, stamp, msg)
-            self.diagnostics.add_unmatched(counters.dropped + counters.stale - before)
-            stale, jumps = counters.stale - stale, counters.time_jumps - jumps
-        if stale:
+            before = self._sync.counters.copy()
+            sets = step(self._sync)
+            change = self._sync.counters.since(before)
+        self.diagnostics.sync_changed(change)
+        if change.stale:
             self._stale_stamp(topic, stamp)
-        if jumps:
+        if change.time_jumps:
             self._time_jump(topic, stamp)
         for stamp_ns, messages in sets:
             self._worker.submit((next(self._sequence), stamp_ns, messages))
 
+    def _flush_when_idle(self) -> None:
+        """The stream paused: a set that waits only for its camera_info goes out with the last one, as at
+        the end of a bag, instead of waiting for the next frame."""
+        if self._last_input_s and time.monotonic() - self._last_input_s > IDLE_FLUSH_S:
+            self._last_input_s = 0.0
+            self._pair(Synchronizer.flush, "", 0)
+
     def _stale_stamp(self, topic: str, stamp_ns: int) -> None:
-        self.diagnostics.add_stale()
         self.problems.skipped(
             f"{topic}: stamp {stamp_ns / 1e9:.6f} s is not newer than the last paired set (repeated, or "
             "back by less than 1 s), message dropped; each frame needs a new, increasing stamp"
         )
 
     def _time_jump(self, topic: str, stamp_ns: int) -> None:
-        self.diagnostics.add_time_jump()
         self.problems.info(
             f"{topic}: stamps jumped back to {stamp_ns / 1e9:.3f} s (a looping bag or a restarted driver); "
             "pairing restarted from there"
