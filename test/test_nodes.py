@@ -63,17 +63,29 @@ class StereoInput:
         for publisher, count in zip(self.publishers, (images, infos, images, infos), strict=True):
             wait_until(lambda p=publisher, n=count: p.get_subscription_count() >= n, f"{publisher.topic_name} matched")
 
-    def publish(self, pair: Pair, stamp: int, right_stamp: int | None = None, left_encoding: str | None = None) -> None:
+    def publish(
+        self,
+        pair: Pair,
+        stamp: int,
+        right_stamp: int | None = None,
+        left_encoding: str | None = None,
+        order: tuple[int, ...] = (0, 1, 2, 3),
+    ) -> None:
+        """The inputs named by `order` (0 left image, 1 left info, 2 right image, 3 right info), in that order."""
         right_stamp = stamp if right_stamp is None else right_stamp
         left_header = make_header(RCLPY_TYPES, stamp, FRAME)
         right_header = make_header(RCLPY_TYPES, right_stamp, FRAME)
         left = array_to_image(RCLPY_TYPES, left_header, pair.left)
         if left_encoding is not None:
             left.encoding = left_encoding
-        self.publishers[0].publish(left)
-        self.publishers[1].publish(camera_info_to_msg(RCLPY_TYPES, left_header, pair.left_info))
-        self.publishers[2].publish(array_to_image(RCLPY_TYPES, right_header, pair.right))
-        self.publishers[3].publish(camera_info_to_msg(RCLPY_TYPES, right_header, pair.right_info))
+        messages = (
+            left,
+            camera_info_to_msg(RCLPY_TYPES, left_header, pair.left_info),
+            array_to_image(RCLPY_TYPES, right_header, pair.right),
+            camera_info_to_msg(RCLPY_TYPES, right_header, pair.right_info),
+        )
+        for index in order:
+            self.publishers[index].publish(messages[index])
 
 
 class Pair:
@@ -305,6 +317,58 @@ def test_burst_into_two_matching_threads_keeps_input_order_and_counts_every_set(
         assert accounted()[2] > 0  # the burst outran the node: else there was nothing to order or drop
     finally:
         ros.set_parameters(fqn, matching_threads=1, sgbm_mode=2)
+
+
+def node_counters(diagnostics: Any, *keys: str) -> list[int]:
+    """The node's counters in a report that came after this call (0 for a counter not reported yet)."""
+    seen = len(diagnostics.messages)
+    wait_until(lambda: len(diagnostics.messages) > seen, "a diagnostics report")
+    values = {kv.key: kv.value for kv in diagnostics.messages[-1].status[0].values}
+    return [int(values.get(key, 0)) for key in keys]
+
+
+STOOD_IN = "/live/left/camera_info missing, last one used"
+PUBLISH_ORDERS = {
+    "camera_info first": (1, 3, 0, 2),
+    "each camera_info after its image": (0, 1, 2, 3),
+    "images first": (0, 2, 1, 3),
+    "right camera first, info last": (2, 0, 3, 1),
+}
+
+
+def test_every_publish_order_and_a_lagging_right_camera_pair_every_set(live: dict[str, Any], artl: Pair) -> None:
+    """A driver may publish the four topics in any order, and one camera may lag the other by frames:
+    every set is still paired, no input message is left unmatched. A camera_info that never comes (DDS
+    lost it) costs no frame: the last one stands in, counted per topic."""
+    keys = ("unmatched input messages", "dropped frames", "frames processed")
+    before = node_counters(live["diagnostics"], *keys, STOOD_IN)
+    sent = []
+    for order in PUBLISH_ORDERS.values():
+        for _ in range(3):
+            sent.append(next(_stamps))
+            live["inputs"].publish(artl, sent[-1], order=order)
+            live["disparity"].wait_stamp(sent[-1])
+    lag = 2  # the right camera's messages of frame k come after the left camera's of frame k + 2
+    skewed = [next(_stamps) for _ in range(6)]
+    for k in range(len(skewed) + lag):
+        if k < len(skewed):
+            live["inputs"].publish(artl, skewed[k], order=(1, 0))
+        if k >= lag:
+            live["inputs"].publish(artl, skewed[k - lag], order=(3, 2))
+            live["disparity"].wait_stamp(skewed[k - lag])
+    sent += skewed
+    lost, after = next(_stamps), next(_stamps)
+    live["inputs"].publish(artl, lost, order=(3, 0, 2))  # its left camera_info lost on the way
+    live["inputs"].publish(artl, after, order=(1, 3, 0, 2))
+    sent += [lost, after]
+
+    def accounted() -> bool:
+        unmatched, dropped, processed, stood_in = node_counters(live["diagnostics"], *keys, STOOD_IN)
+        assert (unmatched, dropped) == tuple(before[:2])
+        return processed - before[2] == len(sent) and stood_in > before[3]
+
+    wait_until(accounted, "every set processed, one with the last left camera_info")
+    assert set(sent) <= set(live["disparity"].stamps())
 
 
 def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: Pair) -> None:
