@@ -3,20 +3,27 @@
 Measures what the ROS 1 stereo_image_proc anchor (../shared/anchors/ros1_stereo_image_proc) measures,
 the same way, on the same kind of frames:
   * a publisher process replays the anchor's synthetic 640x480 / 1280x720 mono8 stream (bench/anchor_frames.py,
-    same recipe and seed) at a set rate: left/right image_raw + camera_info, reliable, pre-serialized;
+    same recipe and seed; bgr8 copies for the colour cases) at a set rate: left/right image_raw + camera_info,
+    reliable, pre-serialized, in the case's order within a frame (a driver may send camera_info first), with
+    the right camera some frames late (skew) or frames sent back to back (bursts);
   * stereo_node runs in its own process (`python -m stereo_depth.nodes.stereo_node`, namespace /stereo);
   * a monitor process subscribes to left/image_raw, disparity and points2 (reliable, raw CDR so that
     10 MB clouds cost it no deserialization) and logs every receipt with DDS's reception time;
-  * latency = monitor's receipt of the output with stamp s - its receipt of left/image_raw with stamp s;
+  * latency: from the publisher's send time of the frame's last message (one clock on one machine), and from
+    the monitor's receipt of left/image_raw with the same stamp;
     rate = outputs / (last - first receipt); dropped = replayed frames with no output;
-    node CPU = utime + stime of the stereo_node process over the active window (100% = 1 core).
+    node CPU = utime + stime of the stereo_node process over the active window (100% = 1 core);
+  * bare_vga_30: no node; the publisher sends messages of the disparity's and the cloud's sizes at 30 Hz
+    straight to the monitor: what bare rclpy reaches for such messages in the same run.
 A few warm-up frames (not counted) go first, so one-off start-up work (imports, numba cache, first
 allocation) is not billed to the stream. Every process it starts is stopped by PID.
 
-All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_DOMAIN_ID (default 15) and the repository's
-Fast DDS profile for large images (config/fastdds_large_images.xml; --no-shm-profile leaves it out).
+All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default 15). `--profiles all`
+exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in all three; `none` in none, as a
+new user runs it (stereo_node then loads it for itself, see stereo_depth/ros/transport.py).
 
-    .venv/bin/python bench/e2e_dds.py                 # every case once
+    .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
+    .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
     .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
 """
 
@@ -35,6 +42,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from stereo_depth.ros.transport import PROFILE_VARIABLES
+
 REPO = Path(__file__).resolve().parents[1]
 TICK = os.sysconf("SC_CLK_TCK")
 NAMESPACE = "/stereo"
@@ -50,6 +61,11 @@ class Case:
     rate_hz: float
     params: tuple[str, ...]  # stereo_node -p name:=value
     points: bool = True  # the monitor subscribes to points2
+    order: str = "0123"  # publish order within a frame: 0 left image, 1 left info, 2 right image, 3 right info
+    skew: int = 0  # the right camera's messages of frame i go out with the left camera's of frame i + skew
+    burst: int = 1  # frames sent back to back, every burst-th period (a driver that buffers)
+    color: bool = False  # bgr8 images (921 KB at VGA) instead of mono8
+    bare: bool = False  # no stereo_node: the publisher sends disparity- and points2-sized messages itself
 
 
 ANCHOR = ("profile:=stereo_image_proc",)  # BM, 64 disparities, window 15: the anchor's defaults
@@ -70,8 +86,25 @@ CASES = {
         Case("sgbm_vga_30_16b", 640, 480, 30.0, (*ANCHOR, "stereo_algorithm:=1", *SAME_CLOUD)),
         Case("bm_720p_30", 1280, 720, 30.0, ANCHOR),
         Case("bm_720p_30_16b", 1280, 720, 30.0, (*ANCHOR, *SAME_CLOUD)),
+        # input pairing (issue 15): the order and timing of the four topics must not matter
+        Case("bm_vga_30_info_first", 640, 480, 30.0, ANCHOR, order="1302"),
+        Case("bm_vga_30_bgr8_info_first", 640, 480, 30.0, ANCHOR, order="1302", color=True),
+        Case("bm_vga_30_bgr8", 640, 480, 30.0, ANCHOR, color=True),
+        Case("bm_vga_30_right_2_late", 640, 480, 30.0, ANCHOR, order="1302", skew=2),
+        # bursts: 3 waiting places (max_waiting_frames), so the newest-set-only default does not drop 2 of 3
+        Case("bm_vga_30_bursts_of_3", 640, 480, 30.0, (*ANCHOR, "max_waiting_frames:=3"), order="1302", burst=3),
+        # bare rclpy: messages of the disparity's and points2's sizes at 30 Hz, publisher -> monitor
+        Case("bare_vga_30", 640, 480, 30.0, (), bare=True),
     )
 }
+PAIRING = [
+    "bare_vga_30",
+    "bm_vga_30_info_first",
+    "bm_vga_30",
+    "bm_vga_30_bgr8_info_first",
+    "bm_vga_30_right_2_late",
+    "bm_vga_30_bursts_of_3",
+]
 ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
     "bm_vga_30": "bm vga 1x",
     "bm_vga_30_16b": "bm vga 1x",
@@ -85,9 +118,9 @@ ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
 
 
 def ros_env(domain_id: str, shm_profile: bool) -> dict[str, str]:
-    env = dict(os.environ)
+    """shm_profile False: no profile exported, as a new user runs it (stereo_node still loads its own)."""
+    env = {k: v for k, v in os.environ.items() if k not in PROFILE_VARIABLES and k != "ROS_LOCALHOST_ONLY"}
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain_id, PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
     if shm_profile:
         profile = str(REPO / "config" / "fastdds_large_images.xml")
         env.update(FASTRTPS_DEFAULT_PROFILES_FILE=profile, FASTDDS_DEFAULT_PROFILES_FILE=profile)
@@ -98,11 +131,13 @@ def ros_env(domain_id: str, shm_profile: bool) -> dict[str, str]:
 
 
 def run_publisher(args: argparse.Namespace) -> None:
-    """Pre-serialize every message, wait for the node and the monitor, then replay on an absolute schedule."""
+    """Pre-serialize every message, wait for the node and the monitor, then replay on an absolute schedule
+    in the case's order, skew and bursts; the send time of each frame's last message goes to --sent."""
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
-    from sensor_msgs.msg import CameraInfo, Image
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+    from stereo_msgs.msg import DisparityImage
 
     from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
     from stereo_depth.ros.types import RCLPY_TYPES
@@ -113,8 +148,13 @@ def run_publisher(args: argparse.Namespace) -> None:
     rclpy.init()
     node = rclpy.create_node("e2e_replay")
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-    topics = [("left/image_raw", Image), ("left/camera_info", CameraInfo)]
-    topics += [("right/image_raw", Image), ("right/camera_info", CameraInfo)]
+    if args.bare:
+        topics = [("disparity", DisparityImage), ("points2", PointCloud2)]
+        wanted: tuple[int, ...] = (1, 1)
+    else:
+        topics = [("left/image_raw", Image), ("left/camera_info", CameraInfo)]
+        topics += [("right/image_raw", Image), ("right/camera_info", CameraInfo)]
+        wanted = (2, 1, 1, 1)  # left image: stereo_node + monitor
     pubs = [node.create_publisher(t, f"{NAMESPACE}/{name}", qos) for name, t in topics]
     infos = camera_infos(args.width, args.height)
     total = WARMUP_FRAMES + args.frames
@@ -122,29 +162,69 @@ def run_publisher(args: argparse.Namespace) -> None:
     sets: list[list[bytes]] = []
     for i, (left, right) in enumerate(frames(args.width, args.height, total)):
         header = make_header(RCLPY_TYPES, FIRST_STAMP_NS + (i - WARMUP_FRAMES) * period_ns, FRAME_ID)
+        if args.bare:
+            sets.append([serialize_message(m) for m in bare_messages(header, args.width, args.height)])
+            continue
+        if args.color:
+            left, right = (np.repeat(image[:, :, None], 3, axis=2) for image in (left, right))
         msgs = [array_to_image(RCLPY_TYPES, header, left), camera_info_to_msg(RCLPY_TYPES, header, infos[0])]
         msgs += [array_to_image(RCLPY_TYPES, header, right), camera_info_to_msg(RCLPY_TYPES, header, infos[1])]
         sets.append([serialize_message(m) for m in msgs])
     deadline = time.monotonic() + 60
-    wanted = (2, 1, 1, 1)  # left image: stereo_node + monitor
     while any(p.get_subscription_count() < n for p, n in zip(pubs, wanted, strict=True)):
         if time.monotonic() > deadline:
             sys.exit("publisher: stereo_node / monitor did not subscribe within 60 s")
         time.sleep(0.05)
     time.sleep(1.0)  # let both ends finish matching (reliable writers need the readers' acks)
+    sent: dict[int, int] = {}
     start = time.monotonic() + 0.5
-    for i, messages in enumerate(sets):
-        if i == WARMUP_FRAMES:
+    for slot, sends in enumerate(schedule(len(sets), args)):
+        if slot == WARMUP_FRAMES:
             time.sleep(2.0)
-            start = time.monotonic() - i / args.rate
-        delay = start + i / args.rate - time.monotonic()
+            start = time.monotonic() - slot / args.rate
+        delay = start + slot / args.rate - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        for k in args.order:
-            pubs[int(k)].publish(messages[int(k)])
+        for frame, index in sends:
+            pubs[index].publish(sets[frame][index])
+            sent[frame] = time.time_ns()  # the frame is complete at the sender after its last message
     time.sleep(0.5)
+    Path(args.sent).write_text(
+        json.dumps({str(FIRST_STAMP_NS + (f - WARMUP_FRAMES) * period_ns): t for f, t in sent.items()})
+    )
     node.destroy_node()
     rclpy.try_shutdown()
+
+
+def schedule(count: int, args: argparse.Namespace) -> list[list[tuple[int, int]]]:
+    """Per period slot, the (frame, input) messages sent in it: each frame in `order`, the right camera's
+    messages `skew` frames late, and with `burst` > 1 only every burst-th slot sends (the frames since)."""
+    if args.bare:
+        return [[(frame, 0), (frame, 1)] for frame in range(count)]
+    slots: list[list[tuple[int, int]]] = [[] for _ in range(count + args.skew)]
+    for frame in range(count):
+        for index in (int(k) for k in args.order):
+            slots[frame + (args.skew if index >= 2 else 0)].append((frame, index))
+    if args.burst > 1:
+        for slot in range(len(slots)):
+            if slot % args.burst != args.burst - 1 and slot + 1 < len(slots):
+                slots[slot + 1][:0] = slots[slot]
+                slots[slot] = []
+    return slots
+
+
+def bare_messages(header: Any, width: int, height: int) -> list[Any]:
+    """A DisparityImage and a PointCloud2 of the sizes stereo_node publishes (float32 disparity, 32 B/pt)."""
+    from sensor_msgs.msg import PointCloud2
+    from stereo_msgs.msg import DisparityImage
+
+    disparity = DisparityImage(header=header)
+    disparity.image.height, disparity.image.width, disparity.image.step = height, width, 4 * width
+    disparity.image.encoding = "32FC1"
+    disparity.image.data = bytes(4 * width * height)
+    cloud = PointCloud2(header=header, height=height, width=width, point_step=32, row_step=32 * width)
+    cloud.data = bytes(32 * width * height)
+    return [disparity, cloud]
 
 
 # ------------------------------------------------------------------------------------------ monitor
@@ -233,7 +313,11 @@ def stop(process: subprocess.Popen[bytes] | None, timeout: float = 10.0) -> None
         process.wait()
 
 
-def output_stats(records: list[tuple[int, int]], t_in: dict[int, int], frames: int) -> dict[str, Any]:
+def output_stats(
+    records: list[tuple[int, int]], t_in: dict[int, int], frames: int, sent: dict[int, int]
+) -> dict[str, Any]:
+    """Rate and drops of one output; latency from the monitor's receipt of the input (`lat_*`) and from
+    the publisher's send time of the frame's last message (`send_lat_*`; one clock, one machine)."""
     measured = [(s, t) for s, t in records if s in t_in]
     out: dict[str, Any] = {"received": len(measured), "dropped": frames - len({s for s, _ in measured})}
     times = sorted(t for _, t in measured)
@@ -244,48 +328,41 @@ def output_stats(records: list[tuple[int, int]], t_in: dict[int, int], frames: i
         out["lat_median"] = statistics.median(latency)
         out["lat_p95"] = latency[round(0.95 * (len(latency) - 1))]
         out["lat_max"] = latency[-1]
+    from_send = sorted((t - sent[s]) / 1e6 for s, t in measured if s in sent)
+    if from_send:
+        out["send_lat_median"] = statistics.median(from_send)
+        out["send_lat_p95"] = from_send[round(0.95 * (len(from_send) - 1))]
     return out
 
 
-def run_case(case: Case, args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
-    env = ros_env(args.domain_id, not args.no_shm_profile)
+def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool) -> dict[str, Any]:
+    """One run; `profile`: all three processes export config/fastdds_large_images.xml, else none does."""
+    env = ros_env(args.domain_id, profile)
+    label = f"{case.name}{'+profile' if profile else ''}"
     me = [sys.executable, str(Path(__file__).resolve())]
-    monitor_out = workdir / f"{case.name}.monitor.json"
+    monitor_out, sent_out = workdir / f"{label}.monitor.json", workdir / f"{label}.sent.json"
     node_cmd = [sys.executable, "-m", args.node_module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     for param in (*case.params, *args.param):
         node_cmd += ["-p", param]
-    node = start(node_cmd, env, workdir / f"{case.name}.node.log")
+    node = None if case.bare else start(node_cmd, env, workdir / f"{label}.node.log")
     monitor = publisher = None
     samples: list[tuple[float, float | None, int, int]] = []
 
     def sample() -> None:
         total, idle = machine_ticks()
-        samples.append((time.time(), proc_cpu_s(node.pid), total, idle))
+        samples.append((time.time(), proc_cpu_s(node.pid) if node else None, total, idle))
 
+    publish_cmd = [*me, "publish", "--width", str(case.width), "--height", str(case.height)]
+    publish_cmd += ["--rate", str(case.rate_hz), "--frames", str(args.frames), "--order", case.order]
+    publish_cmd += ["--skew", str(case.skew), "--burst", str(case.burst), "--sent", str(sent_out)]
+    publish_cmd += (["--color"] if case.color else []) + (["--bare"] if case.bare else [])
     try:
         monitor_cmd = [*me, "monitor", "--out", str(monitor_out)] + ([] if case.points else ["--no-points"])
-        monitor = start(monitor_cmd, env, workdir / f"{case.name}.monitor.log")
-        publisher = start(
-            [
-                *me,
-                "publish",
-                "--width",
-                str(case.width),
-                "--height",
-                str(case.height),
-                "--rate",
-                str(case.rate_hz),
-                "--frames",
-                str(args.frames),
-                "--order",
-                args.order,
-            ],
-            env,
-            workdir / f"{case.name}.publisher.log",
-        )
+        monitor = start(monitor_cmd, env, workdir / f"{label}.monitor.log")
+        publisher = start(publish_cmd, env, workdir / f"{label}.publisher.log")
         while publisher.poll() is None:
-            if node.poll() is not None:
-                sys.exit(f"stereo_node exited, see {workdir / f'{case.name}.node.log'}")
+            if node is not None and node.poll() is not None:
+                sys.exit(f"stereo_node exited, see {workdir / f'{label}.node.log'}")
             sample()
             time.sleep(0.1)
         last = None
@@ -299,16 +376,21 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path) -> dict[str, A
         stop(publisher)
         stop(monitor)
         stop(node)
-    result = json.loads(monitor_out.read_text())
-    return summarize(case, args.frames, result, samples)
+    sent = {int(s): t for s, t in json.loads(sent_out.read_text()).items()}
+    row = summarize(case, args.frames, json.loads(monitor_out.read_text()), samples, sent)
+    row["profile"] = "all" if profile else "none"
+    return row
 
 
-def summarize(case: Case, frames: int, monitor: dict[str, Any], samples: list[Any]) -> dict[str, Any]:
+def summarize(
+    case: Case, frames: int, monitor: dict[str, Any], samples: list[Any], sent: dict[int, int]
+) -> dict[str, Any]:
     records = {k: [tuple(r) for r in v] for k, v in monitor["records"].items()}
-    t_in = {s: t for s, t in records["in"] if s >= FIRST_STAMP_NS}
+    sent = {s: t for s, t in sent.items() if s >= FIRST_STAMP_NS}
+    t_in = sent if case.bare else {s: t for s, t in records["in"] if s >= FIRST_STAMP_NS}
     row: dict[str, Any] = {"case": case.name, "frames": frames, "inputs_seen": len(t_in)}
-    row["disparity"] = output_stats(records["disparity"], t_in, frames)
-    row["points2"] = output_stats(records["points2"], t_in, frames) if case.points else None
+    row["disparity"] = output_stats(records["disparity"], t_in, frames, sent)
+    row["points2"] = output_stats(records["points2"], t_in, frames, sent) if case.points else None
     outputs = [t for key in ("disparity", "points2") for s, t in records[key] if s in t_in]
     if not t_in or not outputs:
         sys.exit(f"{case.name}: {len(t_in)} inputs and {len(outputs)} outputs seen; see the logs (--logdir)")
@@ -322,10 +404,12 @@ def summarize(case: Case, frames: int, monitor: dict[str, Any], samples: list[An
     row["node_cpu_ms_per_frame"] = 1000.0 * node_cpu_s / max(1, row["disparity"]["received"])
     row["machine_busy_cores"] = (1.0 - (s1[3] - s0[3]) / max(1, s1[2] - s0[2])) * (os.cpu_count() or 1)
     diagnostics = monitor["diagnostics"]
-    row["node_dropped_diag"] = diagnostics.get("dropped frames", "?")
+    row["node_dropped_diag"] = diagnostics.get("dropped frames", "-")
     row["node_stage_ms"] = {
         k[: -len(" time (ms)")]: float(v) for k, v in diagnostics.items() if k.endswith(" time (ms)")
     }
+    row["node_inputs"] = {k: v for k, v in diagnostics.items() if "camera_info" in k and ("lost" in k or "used" in k)}
+    row["bottleneck"] = diagnostics.get("bottleneck", "-")
     row["monitor_cpu_s"] = monitor["cpu_s"]
     return row
 
@@ -350,27 +434,28 @@ def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def latency_text(output: dict[str, Any] | None) -> str:
-    if not output or "lat_median" not in output:
+    if not output or "send_lat_median" not in output:
         return "-"
-    return f"{output['lat_median']:.1f} / {output['lat_p95']:.1f} / {output['lat_max']:.1f}"
+    from_input = f"{output['lat_median']:.0f}" if "lat_median" in output else "-"
+    return f"{output['send_lat_median']:.0f} / {output['send_lat_p95']:.0f} / {from_input}"
 
 
 def print_header() -> None:
     print(
-        f"{'case':26s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>9s}{'diag':>6s}"
-        f"{'disp lat med/p95/max ms':>25s}{'pts lat med/p95/max ms':>25s}{'node CPU':>9s}{'ms/frame':>9s}"
-        f"{'machine':>8s}"
+        f"{'case':26s}{'profile':>8s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>9s}{'diag':>6s}"
+        f"{'disp lat ms':>17s}{'pts lat ms':>17s}{'node CPU':>9s}{'ms/frame':>9s}{'machine':>8s}"
     )
 
 
 def print_row(r: dict[str, Any]) -> None:
-    """dropped: replayed frames without a disparity / without a points2; diag: the node's own count."""
+    """dropped: replayed frames without a disparity / without a points2; diag: the node's own count;
+    lat: median / p95 from the publisher's send time, median from the monitor's receipt of the input."""
     d, p = r["disparity"], r["points2"]
     points_hz = f"{p['hz']:.1f}" if p else "-"
     dropped = f"{d['dropped']:.0f}" + (f"/{p['dropped']:.0f}" if p else "")
     print(
-        f"{r['case']:26s}{d['hz']:8.1f}{points_hz:>8s}{dropped:>9s}{r['node_dropped_diag']!s:>6s}"
-        f"{latency_text(d):>25s}{latency_text(p):>25s}{r['node_cpu_pct']:8.0f}%{r['node_cpu_ms_per_frame']:9.1f}"
+        f"{r['case']:26s}{r['profile']:>8s}{d['hz']:8.1f}{points_hz:>8s}{dropped:>9s}{r['node_dropped_diag']!s:>6s}"
+        f"{latency_text(d):>17s}{latency_text(p):>17s}{r['node_cpu_pct']:8.0f}%{r['node_cpu_ms_per_frame']:9.1f}"
         f"{r['machine_busy_cores']:8.2f}",
         flush=True,
     )
@@ -385,6 +470,7 @@ def print_anchor_comparison(rows: list[dict[str, Any]], anchor_file: Path) -> No
         f"\n{'case (anchor name)':26s}{'':22s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
         f"{'disp lat ms':>12s}{'pts lat ms':>11s}{'CPU %':>7s}"
     )
+    rows = [r for r in rows if r["profile"] == "all"]  # the anchor ran with its transport tuned too
     for name in dict.fromkeys(ANCHOR_NAMES[r["case"]] for r in rows if r["case"] in ANCHOR_NAMES):
         a = anchor.get(name)
         if a is None:
@@ -419,17 +505,30 @@ def main() -> None:
     pub.add_argument("--rate", type=float, default=30.0)
     pub.add_argument("--frames", type=int, default=300)
     pub.add_argument("--order", default="0123")
+    pub.add_argument("--skew", type=int, default=0)
+    pub.add_argument("--burst", type=int, default=1)
+    pub.add_argument("--color", action="store_true")
+    pub.add_argument("--bare", action="store_true")
+    pub.add_argument("--sent", required=True)
     mon = sub.add_parser("monitor")
     mon.add_argument("--out", required=True)
     mon.add_argument("--no-points", dest="points", action="store_false")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     parser.add_argument("--repeats", type=int, default=1, help="runs per case; the table shows medians")
     parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--order", default="0123")
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
     parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
     parser.add_argument("--domain-id", default=os.environ.get("ROS_DOMAIN_ID", "15"))
-    parser.add_argument("--no-shm-profile", action="store_true", help="Fast DDS defaults (no large SHM segment)")
+    parser.add_argument(
+        "--profiles",
+        nargs="+",
+        choices=("none", "all"),
+        default=["all"],
+        help="none: no process exports a profile (stereo_node loads its own); all: all three export it",
+    )
+    parser.add_argument(
+        "--pairing", action="store_true", help="the input-pairing cases (orders, skew, bursts, bare rclpy), both ways"
+    )
     parser.add_argument(
         "--anchor",
         type=Path,
@@ -445,11 +544,13 @@ def main() -> None:
     if args.role == "monitor":
         run_monitor(args)
         return
+    if args.pairing:
+        args.cases, args.profiles = PAIRING, ["none", "all"]
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(
         f"stereo_node end to end over DDS: {args.frames} frames per case, {os.cpu_count()} cores, "
         f"load before {' '.join(load)}, ROS_DOMAIN_ID {args.domain_id}, "
-        f"{'Fast DDS defaults' if args.no_shm_profile else 'config/fastdds_large_images.xml'}",
+        f"profiles: {' and '.join(args.profiles)}",
         flush=True,
     )
     all_runs: list[dict[str, Any]] = []
@@ -458,15 +559,21 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="e2e_dds_") as tmp:
         logdir = args.logdir or Path(tmp)
         logdir.mkdir(parents=True, exist_ok=True)
-        for name in args.cases:
-            runs = [run_case(CASES[name], args, logdir) for _ in range(args.repeats)]
-            all_runs += runs
-            rows.append(median_row(runs) if len(runs) > 1 else runs[0])
-            print_row(rows[-1])
+        for profile in args.profiles:
+            for name in args.cases:
+                runs = [run_case(CASES[name], args, logdir, profile == "all") for _ in range(args.repeats)]
+                all_runs += runs
+                rows.append(median_row(runs) if len(runs) > 1 else runs[0])
+                print_row(rows[-1])
     print("diag: the node's own 'dropped frames', warm-up frames included (a few wait for start-up work)")
     print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
     for r in rows:
-        print(f"{r['case']:26s}" + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
+        print(f"{r['case']:26s}{r['profile']:>6s}  " + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
+    print("\nthe node's camera_info accounting and its bottleneck line (diagnostics)")
+    for r in rows:
+        if r["node_inputs"]:
+            counts = ", ".join(f"{k.split('/')[-1]} {v}" for k, v in r["node_inputs"].items())
+            print(f"{r['case']:26s}{r['profile']:>6s}  {counts}; bottleneck: {r['bottleneck']}")
     if args.json:
         args.json.write_text(json.dumps(all_runs, indent=1))
     if args.anchor.exists():

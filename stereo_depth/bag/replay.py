@@ -76,6 +76,8 @@ def replay(path: Path | str, options: ReplayOptions | None = None) -> int:
     from rclpy.duration import Duration
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    from stereo_depth.ros.transport import use_large_message_profile
+
     options = options or ReplayOptions()
     if not options.rate > 0:
         msg = f"--rate {options.rate} must be positive"
@@ -86,6 +88,7 @@ def replay(path: Path | str, options: ReplayOptions | None = None) -> int:
     topic_types, _ = _timeline(path, wanted)  # fail on a bad bag before DDS starts
     args = ["--ros-args", *(a for rule in options.remaps for a in ("-r", rule))]
     context = Context()
+    use_large_message_profile()  # before the first participant of this process: bags carry large images
     rclpy.init(args=args, context=context)
     node = rclpy.create_node("stereo_depth_replay", context=context)
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)

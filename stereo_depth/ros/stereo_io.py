@@ -47,6 +47,7 @@ from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
 from stereo_depth.ros.problems import ProblemLog
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos
+from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import Synchronizer
 
@@ -408,6 +409,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     `finally` below stops the worker and destroys the node before the process ends with 0.
     A node that cannot start (bad --ros-args, --params-file or parameter value) says why in one
     line and exits with 2, rather than run with part of its configuration."""
+    profile = use_large_message_profile()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except _rclpy.RCLError as exc:  # unreadable --params-file, malformed --ros-args
@@ -417,6 +419,11 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     code = 0
     try:
         node = factory()
+        if profile is not None:
+            node.get_logger().info(
+                f"Fast DDS: large-message profile {profile} for this process (no profile was exported); see "
+                'README "Inputs and outputs over DDS"'
+            )
         rclpy.spin(node)  # the diagnostics / QoS timers wake it often enough for signals
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
