@@ -15,6 +15,9 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/config", glob("config/*")),
+        # sourced by `source install/setup.bash` (colcon.pkg lists them): the large-message profile for
+        # every process of that shell, only when none is set (README "Inputs and outputs over DDS")
+        (f"share/{PACKAGE}/environment", glob("environment/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

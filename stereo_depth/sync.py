@@ -11,8 +11,8 @@ heartbeat, by when its history has often moved on, and the transport drops the s
 when a burst of image fragments fills it (measured: bench/e2e_dds.py, README "Inputs over DDS").
 So `calibrations` maps each camera_info input to the input whose stamp it carries; the other inputs
 (images, disparity) are paired as above, and each camera_info joins its image by stamp. When that
-exact message is missing once the camera_info topic has moved past the stamp, or once an image queue
-is full (a set waits at most `queue_size` frames), the last camera_info serves instead (counted in
+exact message is missing once the camera_info topic has moved past the stamp, or once the images of a
+newer set are complete (a set waits one frame at most), the last camera_info serves instead (counted in
 `substituted`), unless the calibration changed around that stamp (the set is dropped then, counted in
 `calibration_unknown`). A camera_info that comes after its set went out is counted as `late`, never as an error.
 
@@ -175,13 +175,23 @@ class Synchronizer:
             found = self._find_exact() if not self.approximate else self._find_approximate()
             if found is None:
                 return out
-            full = any(len(self._queues[i]) >= self.queue_size for i in self._primaries)
-            choice = self._choose_calibrations(found, force=final or full)
+            choice = self._choose_calibrations(found, force=final or self._must_go(found))
             if choice is None:
                 return out  # waiting for a camera_info that may still come
             emitted = self._emit(found, choice)
             if emitted is not None:
                 out.append(emitted)
+
+    def _must_go(self, positions: dict[int, int]) -> bool:
+        """A set waits for its camera_info only until the images of a newer set are complete (or an image
+        queue is full): one frame period at most, so a stalled camera_info topic costs no frames."""
+        if any(len(self._queues[i]) >= self.queue_size for i in self._primaries):
+            return True
+        if self.approximate:
+            return all(len(self._queues[i]) > p + 1 for i, p in positions.items())
+        stamp = self._queues[self._primaries[0]][positions[self._primaries[0]]][0]
+        newer = ({s for s, _ in self._queues[i] if s > stamp} for i in self._primaries)
+        return bool(set.intersection(*newer))
 
     def _find_exact(self) -> dict[int, int] | None:
         """Oldest stamp that every image input has, as the position in each queue."""

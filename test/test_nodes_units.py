@@ -15,12 +15,15 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
+from std_msgs.msg import Header
 
 from stereo_depth.core.params import PROFILES, StereoParams
-from stereo_depth.ros.diagnostics import RateMonitor
+from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.stereo_io import LatestWorker
+from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
+from stereo_depth.sync import SyncCounters
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
 RELIABLE, BEST_EFFORT = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
@@ -162,3 +165,34 @@ def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     expected |= {f.name: getattr(StereoParams(), f.name) for f in dataclasses.fields(StereoParams)}
     expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
     assert values == expected
+
+
+def test_our_processes_take_the_large_message_profile_only_when_the_user_chose_none() -> None:
+    chosen: dict[str, str] = {}
+    profile = use_large_message_profile(chosen)
+    assert profile is not None and profile.is_file()
+    assert chosen == dict.fromkeys(PROFILE_VARIABLES, str(profile))
+    for users in ({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine.xml"}, {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}):
+        before = dict(users)
+        assert use_large_message_profile(users) is None and users == before
+
+
+def test_diagnostics_count_what_pairing_did_per_topic_and_name_the_bottleneck() -> None:
+    topics = ["/l/image_raw", "/l/camera_info", "/r/image_raw", "/r/camera_info"]
+    diagnostics = NodeDiagnostics("/stereo_node", topics)
+
+    def report() -> dict[str, str]:
+        return {kv.key: kv.value for kv in diagnostics.report(Header()).status[0].values}
+
+    change = SyncCounters(dropped=1, dropped_by_input=[1, 0, 0, 0], substituted=[0, 3, 0, 0], late=[0, 2, 0, 0])
+    diagnostics.sync_changed(change)
+    diagnostics.add_dropped(1)
+    values = report()
+    assert values["/l/image_raw unmatched"] == "1" and values["unmatched input messages"] == "1"
+    assert values["/l/camera_info missing, last one used"] == "3"
+    assert values["/l/camera_info late (after its set)"] == "2"
+    assert "/r/camera_info missing, last one used" not in values  # shown once it happens
+    bottleneck = values["bottleneck"]
+    assert bottleneck.startswith("input /l/camera_info") and "matching slower" in bottleneck
+    assert "Inputs and outputs over DDS" in bottleneck
+    assert report()["bottleneck"] == "none"  # nothing lost since the previous report

@@ -78,7 +78,7 @@ class NodeDiagnostics:
         self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
         self.dropped_clouds = 0  # disparities published whose depth / points2 a newer frame replaced
         self.unmatched = 0  # messages the synchronizer discarded (no partner, queue overflow, stale)
-        self.calibration_unknown = 0  # sets dropped: camera_info missing while the calibration changed
+        self.calibration_unknown = 0  # sets dropped: no camera_info yet, or it changed where one was lost
         self._reported: dict[str, int] = {}  # counters at the previous report: what grew since names the bottleneck
         self.processed = 0
         self.last_error = ""
@@ -221,7 +221,9 @@ class NodeDiagnostics:
         values.append(("dropped frames", str(self.dropped)))
         values.append(("dropped clouds (depth, points2)", str(self.dropped_clouds)))
         values.append(("unmatched input messages", str(self.unmatched)))
-        values.append(("sets without calibration (camera_info lost while it changed)", str(self.calibration_unknown)))
+        values.append(
+            ("sets without calibration (none yet, or it changed where one was lost)", str(self.calibration_unknown))
+        )
         values.append(("bottleneck", self._bottleneck()))
         values.append(("stale or repeated stamps", str(self.stale)))
         values.append(("time jumps (pairing restarted)", str(self.time_jumps)))
