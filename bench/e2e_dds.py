@@ -186,8 +186,8 @@ def run_publisher(args: argparse.Namespace) -> None:
         if delay > 0:
             time.sleep(delay)
         for frame, index in sends:
+            sent[frame] = time.time_ns()  # ends as the send time of the frame's last message
             pubs[index].publish(sets[frame][index])
-            sent[frame] = time.time_ns()  # the frame is complete at the sender after its last message
     time.sleep(0.5)
     Path(args.sent).write_text(
         json.dumps({str(FIRST_STAMP_NS + (f - WARMUP_FRAMES) * period_ns): t for f, t in sent.items()})
