@@ -14,10 +14,10 @@ from test_calibration_check import rotated_about_baseline
 from stereo_depth.bag.make import StreamLayout, write_stream
 from stereo_depth.bag.sources import SourceFrame
 from stereo_depth.bag.writer import BagWriter
-from stereo_depth.camera_info_yaml import camera_info_to_yaml, read_camera_info_yaml
 from stereo_depth.cli import main
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml, read_camera_info_yaml
+from stereo_depth.formats.euroc import stereo_camera_infos
 
 from conftest import DATA, EUROC
 

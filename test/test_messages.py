@@ -14,6 +14,7 @@ from stereo_depth.bag.types import deserialize, rosbags_types, serialize
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import ImageError
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     CloudBuffer,
     array_to_image,
@@ -28,7 +29,6 @@ from stereo_depth.messages import (
     make_header,
     points_to_cloud,
 )
-from stereo_depth.scenes import load_scene
 
 from conftest import SCENES
 

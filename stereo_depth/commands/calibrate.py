@@ -11,7 +11,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereo_depth.camera_info_yaml import camera_info_to_yaml
 from stereo_depth.core.calibration import (
     MIN_VIEWS,
     Board,
@@ -25,6 +24,7 @@ from stereo_depth.core.calibration import (
 )
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import CalibrationError
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PICTURE = "rectified.png"

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_depth.camera_info_yaml import read_camera_info_yaml
 from stereo_depth.core.calibration_check import CalibrationCheck, Level, check_rectified_pair, verdict
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.errors import CalibrationError
+from stereo_depth.formats.camera_info_yaml import read_camera_info_yaml
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
