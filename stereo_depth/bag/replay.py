@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stereo_depth.bag.reader import open_reader
+from stereo_depth.bag.recording import open_reader
 from stereo_depth.errors import BagError
 
 QOS_DEPTH = 10
