@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy
+from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.params import StereoParams
@@ -39,6 +39,7 @@ OUTPUTS = ("disparity", "depth", "points2", "left/image_rect")
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
+    topics: TopicChoice | None = None  # --left/--right/--camera-info (its namespace wins over the one above)
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
@@ -180,7 +181,7 @@ def process_bag(
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
-        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync) as reader,
+        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics) as reader,
         BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite, compress=options.compress) as writer,
     ):
         topics = reader.topics

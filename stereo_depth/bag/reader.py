@@ -169,6 +169,14 @@ def find_stereo_topics(topics: dict[str, str], namespace: str | None = None, wit
     candidates = stereo_sets(topics, with_info)
     if namespace is not None:
         candidates = [c for c in candidates if c.namespace == _normalise(namespace)]
+    if not candidates and with_info and (images_only := find_images_without_info(topics, namespace)):
+        msg = (
+            f"the bag has the stereo images {images_only.describe()} but no camera_info beside them "
+            f"({info_topic(images_only.names[0])}, {info_topic(images_only.names[2])}); pass the calibration with "
+            "--camera-info FILE_OR_DIR (Kalibr camchain.yaml, left.yaml + right.yaml, or a EuRoC folder), or name "
+            "the camera_info topics with --left-info and --right-info"
+        )
+        raise BagError(msg)
     if not candidates:
         where = f" under namespace '{_normalise(namespace) or '/'}'" if namespace is not None else ""
         needs = "" if not with_info else " with camera_info beside each (or pass --camera-info FILE_OR_DIR)"
@@ -191,6 +199,14 @@ def find_stereo_topics(topics: dict[str, str], namespace: str | None = None, wit
         )
         raise BagError(msg)
     return min(candidates, key=_rank)
+
+
+def find_images_without_info(topics: dict[str, str], namespace: str | None) -> StereoTopics | None:
+    """The image pair the bag would give if it had camera_info (for the error that asks for a file)."""
+    try:
+        return find_stereo_topics(topics, namespace, with_info=False)
+    except BagError:
+        return None
 
 
 def _rank(candidate: StereoTopics) -> tuple[bool, bool]:
