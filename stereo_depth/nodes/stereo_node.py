@@ -28,7 +28,7 @@ from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
 from stereo_depth.outputs import disparity_message
-from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
+from stereo_depth.ros.parameters import CAMERA_OPTIONS, CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, cloud_message, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -40,8 +40,11 @@ class StereoNode(StereoIONode):
         ("right/image_raw", Image),
         ("right/camera_info", CameraInfo),
     )
+    IMAGE_INPUTS = (0, 2)
+    CAMERA_INFO_FILES = ((1, "left_camera_info_url", 0), (3, "right_camera_info_url", 2))
     OPTIONS = (
         *INPUT_OPTIONS,
+        *CAMERA_OPTIONS,
         *CLOUD_OPTIONS,
         "publish_rectified",
         "publish_disparity",

@@ -27,6 +27,7 @@ from stereo_depth.errors import ParameterError
 from stereo_depth.messages import DEFAULT_MAX_PIXELS
 
 RELIABILITY_CHOICES = ("auto", "reliable", "best_effort")
+IMAGE_TRANSPORTS = ("raw", "compressed")
 INTERPOLATIONS = {0: "nearest", 1: "linear", 2: "cubic", 3: "area", 4: "lanczos4"}
 
 
@@ -95,6 +96,24 @@ class NodeOptions:
             1,
         ),
     )
+    image_transport: str = field(
+        default="raw",
+        metadata=_spec(
+            "Image inputs, read at start-up (stereo_image_proc's meaning): raw (sensor_msgs/Image) or "
+            "compressed (<image topic>/compressed, sensor_msgs/CompressedImage, JPEG or PNG)"
+        ),
+    )
+    left_camera_info_url: str = field(
+        default="",
+        metadata=_spec(
+            "Left camera_info YAML, read at start-up (file:///path/left.yaml, as camera_info_manager); "
+            "when set it replaces the left/camera_info topic"
+        ),
+    )
+    right_camera_info_url: str = field(
+        default="",
+        metadata=_spec("Right camera_info YAML, as left_camera_info_url; replaces the right/camera_info topic"),
+    )
     max_image_pixels: int = field(
         default=DEFAULT_MAX_PIXELS,
         metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
@@ -107,6 +126,9 @@ class NodeOptions:
     def validate(self) -> NodeOptions:
         if self.input_reliability not in RELIABILITY_CHOICES:
             msg = f"input_reliability '{self.input_reliability}' must be one of {', '.join(RELIABILITY_CHOICES)}"
+            raise ParameterError(msg)
+        if self.image_transport not in IMAGE_TRANSPORTS:
+            msg = f"image_transport '{self.image_transport}' must be one of {', '.join(IMAGE_TRANSPORTS)}"
             raise ParameterError(msg)
         return self
 
@@ -128,6 +150,8 @@ class NodeOptions:
 SYNC_OPTIONS = ("queue_size", "approximate_sync", "approximate_sync_tolerance_seconds")
 INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_waiting_frames", "max_image_pixels")
 CLOUD_OPTIONS = ("use_color", "avoid_point_cloud_padding")
+CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
+STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 
 
 @dataclass(frozen=True)
@@ -185,7 +209,8 @@ class NodeParameters:
             self._declare_stereo()
         options = {f.name: f for f in dataclasses.fields(NodeOptions)}
         for name in self._option_names:
-            node.declare_parameter(name, getattr(NodeOptions(), name), _describe(options[name]))
+            descriptor = _describe(options[name], read_only=name in STARTUP_OPTIONS)
+            node.declare_parameter(name, getattr(NodeOptions(), name), descriptor)
         self.settings = self._build({})  # a bad start-up value raises ParameterError here
         node.add_pre_set_parameters_callback(self._expand_aliases)
         node.add_on_set_parameters_callback(self._validate)
@@ -300,6 +325,8 @@ def render_config_yaml() -> str:
 def _yaml_value(value: object) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
+    if value == "":
+        return "''"  # an empty string, not YAML's null
     return str(value)
 
 
