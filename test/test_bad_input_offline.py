@@ -177,3 +177,14 @@ def test_malformed_ground_truth_index_is_one_error_line(capsys: pytest.CaptureFi
     code = main(["demo", "--bags", str(bags), "--out", str(tmp_path / "out"), "--set", "disparity_range=16"])
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1 and "not a ground-truth index (KeyError" in err
+
+
+def test_a_parser_message_with_newlines_still_makes_one_error_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    params = tmp_path / "params.yaml"
+    params.write_text("- : [\n")  # PyYAML's message quotes the line with a caret under it
+    code = main(["process", str(MIDDLEBURY_BAG), str(tmp_path / "out"), "--params", str(params)])
+    err = capsys.readouterr().err
+    assert code == 1 and err.startswith("ERROR: ") and err.count("\n") == 1, err
+    assert "cannot read it as YAML" in err
