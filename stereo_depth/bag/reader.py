@@ -174,7 +174,7 @@ def find_stereo_topics(topics: dict[str, str], namespace: str | None = None, wit
             f"the bag has the stereo images {images_only.describe()} but no camera_info beside them "
             f"({info_topic(images_only.names[0])}, {info_topic(images_only.names[2])}); pass the calibration with "
             "--camera-info FILE_OR_DIR (Kalibr camchain.yaml, left.yaml + right.yaml, or a EuRoC folder), or name "
-            "the camera_info topics with --left-info and --right-info"
+            f"the camera_info topics with --left-info and --right-info{_wrong_types(topics)}"
         )
         raise BagError(msg)
     if not candidates:

@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         msg = f"--storage rosbag1 writes a ROS 1 bag file: name it *.bag, not {args.out.name}"
         raise BagError(msg)
     size = parse_size(args.crop) if args.crop else None
-    check_output(args.out, args.overwrite)
+    check_output(args.out, args.overwrite, is_file=args.storage == ROS1)
     if args.gt:
         check_output(args.gt, args.overwrite)
     frames = read_frames(args.sources)
