@@ -32,7 +32,7 @@ from stereo_depth.errors import BagError, ParameterError
 from stereo_depth.messages import camera_info_from_msg, cloud_to_arrays, disparity_from_msg, image_to_array, stamp_to_ns
 from stereo_depth.scenes import load_scene
 
-from conftest import DATA, EUROC, SCENES
+from conftest import DATA, EUROC, SCENES, read_image
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 EUROC_BAG = BAGS / "euroc_raw"
@@ -310,7 +310,7 @@ def test_make_bag_reads_a_euroc_mav0_folder(tmp_path: Path) -> None:
         assert [stamp_to_ns(m.header.stamp) for m in messages[topic]] == stamps, topic
     for side, topic in (("left", topics[0]), ("right", topics[2])):
         for name, image in zip(names, messages[topic], strict=True):
-            np.testing.assert_array_equal(image_to_array(image), cv2.imread(str(EUROC / side / name), 0))
+            np.testing.assert_array_equal(image_to_array(image), read_image(EUROC / side / name, cv2.IMREAD_GRAYSCALE))
     left_info, right_info = messages[topics[1]][0], messages[topics[3]][0]
     assert (left_info.width, left_info.height, left_info.distortion_model) == (752, 480, "plumb_bob")
     assert list(left_info.k[[0, 2, 4, 5]]) == [458.654, 367.215, 457.296, 248.375]  # cam0 intrinsics
