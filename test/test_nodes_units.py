@@ -17,6 +17,7 @@ from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
 
 from stereo_depth.core.params import PROFILES, StereoParams
+from stereo_depth.frames import OutputOptions
 from stereo_depth.ros.diagnostics import RateMonitor
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
 from stereo_depth.ros.qos import choose_reliability
@@ -161,4 +162,5 @@ def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     expected = {"profile": "default"}
     expected |= {f.name: getattr(StereoParams(), f.name) for f in dataclasses.fields(StereoParams)}
     expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
+    expected |= {f.name: getattr(OutputOptions(), f.name) for f in dataclasses.fields(OutputOptions)}
     assert values == expected
