@@ -373,6 +373,50 @@ def test_existing_output_is_refused_unless_overwrite(tmp_path: Path) -> None:
     assert leftovers(tmp_path) == ["out"]
 
 
+def test_process_builds_outputs_with_the_nodes_output_options(tmp_path: Path) -> None:
+    """The node's use_color, avoid_point_cloud_padding, confidence and colour image exist offline too."""
+    out = tmp_path / "out"
+    outputs = ["points2", "confidence", "left/image_rect_color", "disparity"]
+    options = ["--set", "use_color=false", "--set", "avoid_point_cloud_padding=true", "--profile", "quality"]
+    assert main(["process", str(MIDDLEBURY_BAG), str(out), "--outputs", *outputs, *options]) == 0
+    messages = read_messages(out, [f"{NS}/{name}" for name in outputs])
+    assert all(len(messages[f"{NS}/{name}"]) == 3 for name in outputs)
+    cloud = messages[f"{NS}/points2"][0]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z"] and cloud.point_step == 12
+    colour, confidence = messages[f"{NS}/left/image_rect_color"][0], messages[f"{NS}/confidence"][0]
+    assert colour.encoding == "bgr8" and confidence.encoding == "32FC1"
+    conf = image_to_array(confidence)
+    disparity = disparity_from_msg(messages[f"{NS}/disparity"][0])
+    assert conf.shape == disparity.shape and np.all(conf[~np.isfinite(disparity)] == 0.0)
+    xyz, rgb = cloud_to_arrays(cloud)
+    assert rgb is None and np.isfinite(xyz[:, :, 2]).mean() > 0.5
+
+
+def test_process_honours_max_image_pixels_and_names_the_topic(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["process", str(EUROC_BAG), str(tmp_path / "out"), "--set", "max_image_pixels=1000"]) == 1
+    out = capsys.readouterr().out
+    assert f"skipped 6x: {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in out
+
+
+def test_misspelt_parameters_name_the_closest_known_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    params = tmp_path / "params.yaml"
+    node_only = "publish_depth: false, matching_threads: 2"  # a stereo_node file: no warning for these
+    params.write_text(f"stereo_node:\n  ros__parameters: {{dispartiy_range: 128, use_colour: false, {node_only}}}\n")
+    out = tmp_path / "out"
+    assert main(["process", str(MIDDLEBURY_BAG), str(out), "--params", str(params), "--outputs", "disparity"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("WARNING")]
+    assert warnings == [
+        f"WARNING: --params {params}: unknown parameters, ignored: 'dispartiy_range' (did you mean "
+        "'disparity_range'?); 'use_colour' (did you mean 'use_color'?)"
+    ]
+    assert main(["process", str(MIDDLEBURY_BAG), str(out), "--set", "dispartiy_range=128", "--overwrite"]) == 1
+    assert "ERROR: --set: unknown parameters, ignored: 'dispartiy_range' (did you mean 'disparity_range'?)" in (
+        capsys.readouterr().err
+    )
+
+
 def test_bag_without_stereo_topics_names_the_topics_it_has(tmp_path: Path) -> None:
     out = tmp_path / "out"
     assert main(["process", str(MIDDLEBURY_BAG), str(tmp_path / "first")]) == 0

@@ -18,6 +18,7 @@ from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
 
 from stereo_depth.core.params import PROFILES, StereoParams
+from stereo_depth.frames import OutputOptions
 from stereo_depth.ros import problems
 from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
@@ -163,6 +164,7 @@ def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     expected = {"profile": "default"}
     expected |= {f.name: getattr(StereoParams(), f.name) for f in dataclasses.fields(StereoParams)}
     expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
+    expected |= {f.name: getattr(OutputOptions(), f.name) for f in dataclasses.fields(OutputOptions)}
     assert values == expected
 
 
