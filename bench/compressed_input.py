@@ -1,6 +1,6 @@
 """What compressed input costs: a VGA stereo frame as raw sensor_msgs/Image, and as image_transport's
 JPEG and PNG sensor_msgs/CompressedImage, decoded the way the node and `process` decode it
-(messages.image_to_pipeline, on rclpy messages) and then through the default pipeline.
+(frames.decode_image, on rclpy messages) and then through the default pipeline.
 
 Raw, JPEG and PNG run interleaved in one process on the same pixels (real EuRoC greyscale frames and
 the bundled colour scene `artl`, both resized to 640x480), so the ratios compare like with like; the
@@ -29,7 +29,8 @@ from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.messages import array_to_compressed, array_to_image, image_to_pipeline, make_header
+from stereo_depth.frames import decode_image
+from stereo_depth.messages import array_to_compressed, array_to_image, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,7 +81,7 @@ def measure(name: str, pair: tuple[np.ndarray, np.ndarray, StereoCamera], repeat
     frame: dict[str, list[float]] = {kind: [] for kind in KINDS}
 
     def decode_both(kind: str) -> tuple[np.ndarray, np.ndarray]:
-        return image_to_pipeline(inputs[kind][0]), image_to_pipeline(inputs[kind][1])
+        return decode_image(inputs[kind][0]), decode_image(inputs[kind][1])
 
     def whole_frame(kind: str) -> None:
         pipeline.process(*decode_both(kind), camera, want_points=False)

@@ -52,6 +52,12 @@ class StereoTopics:
     def images(self) -> tuple[str, str]:
         return self.names[0], self.names[2]
 
+    @property
+    def input_names(self) -> tuple[str, str, str, str]:
+        """What errors call each of the four inputs: its topic, or the calibration file that replaces it."""
+        left_image, left_info, right_image, right_info = self.names
+        return left_image, left_info or "left --camera-info", right_image, right_info or "right --camera-info"
+
     def describe(self) -> str:
         return " + ".join(n for n in self.names if n is not None)
 

@@ -106,12 +106,12 @@ def bag_images(path: Path, choice: TopicChoice, every: int) -> Iterator[ImagePai
     """Every Nth stereo frame of a bag; rosbags is imported only when a bag is read. The images only:
     a bag being calibrated needs no camera_info."""
     from stereo_depth.bag.reader import StereoBagReader
-    from stereo_depth.messages import image_to_pipeline
+    from stereo_depth.frames import decode_image
 
     with StereoBagReader(path, choice=choice) as reader:
         for index, frame in enumerate(reader.frames()):
             if index % every == 0:
-                left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
+                left, right = decode_image(frame.left_image), decode_image(frame.right_image)
                 yield ImagePair(f"stamp {frame.stamp_ns}", left, right)
 
 

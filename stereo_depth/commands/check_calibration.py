@@ -38,7 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def check_bag(path: Path, choice: TopicChoice, every: int) -> list[tuple[int, CalibrationCheck]]:
     """(stamp, check) for every Nth frame, rectified the way stereo_node rectifies it."""
     from stereo_depth.bag.reader import StereoBagReader  # rosbags only when a bag is read
-    from stereo_depth.messages import camera_info_from_msg, image_to_pipeline
+    from stereo_depth.frames import decode_image
+    from stereo_depth.messages import camera_info_from_msg
 
     results = []
     camera: StereoCamera | None = None
@@ -46,7 +47,7 @@ def check_bag(path: Path, choice: TopicChoice, every: int) -> list[tuple[int, Ca
         for index, frame in enumerate(reader.frames()):
             if index % every:
                 continue
-            left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
+            left, right = decode_image(frame.left_image), decode_image(frame.right_image)
             if not reader.topics.rectified:
                 left_info, right_info = camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info)
                 if camera is None or camera.key() != (left_info.key(), right_info.key()):
