@@ -104,3 +104,6 @@ def test_compressed_images_and_camera_info_files_give_the_offline_disparity(
     line = next(line for line in node.output().splitlines() if "damaged JPEG" in line)
     assert f"{NS}/left/image_raw/compressed" in line
     assert node.process.poll() is None and "Traceback" not in node.output()
+    assert "calibration received (left = file://" in node.output()
+    [refused] = ros.set_parameters(node.fqn, image_transport="raw")  # it chose the subscriptions
+    assert not refused.successful and "read-only" in refused.reason
