@@ -144,6 +144,25 @@ def test_a_camchain_with_a_fisheye_camera_is_refused_with_the_reason(tmp_path: P
         read_stereo_calibration(tmp_path / "camchain.yaml")
 
 
+@pytest.mark.parametrize("file", ["camchain", "euroc"])
+def test_malformed_numbers_in_a_calibration_file_are_one_error_naming_it(tmp_path: Path, file: str) -> None:
+    """Three intrinsics instead of four: an error naming the file, not a traceback from unpacking."""
+    if file == "camchain":
+        lines = CAMCHAIN.read_text().splitlines(keepends=True)
+        first = next(i for i, line in enumerate(lines) if line.strip().startswith("intrinsics:"))
+        lines[first] = lines[first].rsplit(",", 1)[0] + "]\n"
+        (tmp_path / "camchain.yaml").write_text("".join(lines))
+        path = tmp_path / "camchain.yaml"
+    else:
+        for side in ("cam0", "cam1"):
+            (tmp_path / side).mkdir()
+            text = (EUROC / f"{side}_sensor.yaml").read_text()
+            (tmp_path / side / "sensor.yaml").write_text(text.replace("intrinsics: [", "intrinsics: [1.0, ", 1))
+        path = tmp_path
+    with pytest.raises(CalibrationError, match=r"malformed calibration values \(ValueError"):
+        read_stereo_calibration(path)
+
+
 # ---------------------------------------------------------------- compressed images
 
 

@@ -6,6 +6,8 @@ inv(T_BS1) * T_BS0. cv2.stereoRectify turns that into the R and P that ROS Camer
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,17 @@ from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import CalibrationError
 
 DISTORTION_MODELS = {"radial-tangential": "plumb_bob", "radtan": "plumb_bob", "equidistant": "equidistant"}
+
+
+@contextmanager
+def calibration_values(source: Path | str) -> Iterator[None]:
+    """Numbers of the wrong count, type or shape in a calibration file become one CalibrationError that
+    names the file, whichever conversion noticed them (float(), reshape, numpy, OpenCV)."""
+    try:
+        yield
+    except (ValueError, TypeError, KeyError, IndexError, np.linalg.LinAlgError, cv2.error) as exc:
+        msg = f"{source}: malformed calibration values ({type(exc).__name__}: {exc}); check its numbers"
+        raise CalibrationError(msg) from exc
 
 
 def read_sensor_yaml(path: Path) -> dict[str, Any]:
@@ -67,10 +80,11 @@ def _intrinsics(data: dict[str, Any], source: Path) -> Intrinsics:
 def stereo_camera_infos(left_yaml: Path, right_yaml: Path, frame_id: str = "cam0") -> tuple[CameraInfo, CameraInfo]:
     """Rectifying CameraInfos for the pair (alpha 0: only valid pixels in the rectified images)."""
     left, right = read_sensor_yaml(left_yaml), read_sensor_yaml(right_yaml)
-    width, height = (int(v) for v in left["resolution"])
-    t_01 = np.linalg.inv(_pose(right)) @ _pose(left)  # points in cam0 -> cam1
-    intrinsics = _intrinsics(left, left_yaml), _intrinsics(right, right_yaml)
-    return rectifying_camera_infos((width, height), *intrinsics, t_01, frame_id)
+    with calibration_values(f"{left_yaml} / {right_yaml}"):
+        width, height = (int(v) for v in left["resolution"])
+        t_01 = np.linalg.inv(_pose(right)) @ _pose(left)  # points in cam0 -> cam1
+        intrinsics = _intrinsics(left, left_yaml), _intrinsics(right, right_yaml)
+        return rectifying_camera_infos((width, height), *intrinsics, t_01, frame_id)
 
 
 def rectifying_camera_infos(

@@ -16,7 +16,7 @@ import yaml
 
 from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import CalibrationError
-from stereo_depth.formats.euroc import Intrinsics, pinhole_intrinsics, rectifying_camera_infos
+from stereo_depth.formats.euroc import Intrinsics, calibration_values, pinhole_intrinsics, rectifying_camera_infos
 
 CAMERA_KEYS = ("intrinsics", "distortion_model", "distortion_coeffs", "resolution")
 
@@ -66,16 +66,17 @@ def read_camchain(path: Path, frame_id: str = "cam0") -> tuple[CameraInfo, Camer
         msg = f"{path}: expected a Kalibr camchain.yaml (a mapping with cam0 and cam1)"
         raise CalibrationError(msg)
     left, right = _camera(document, "cam0", path), _camera(document, "cam1", path)
-    if "T_cn_cnm1" not in right:
-        msg = f"{path}: cam1 has no T_cn_cnm1 (the cam0 -> cam1 transform); run Kalibr's stereo calibration"
-        raise CalibrationError(msg)
-    t_01 = np.asarray(right["T_cn_cnm1"], dtype=np.float64)
-    if t_01.shape != (4, 4):
-        msg = f"{path}: cam1 T_cn_cnm1 is {t_01.shape}, expected a 4x4 matrix"
-        raise CalibrationError(msg)
-    if list(left["resolution"]) != list(right["resolution"]):
-        msg = f"{path}: cam0 is {left['resolution']} but cam1 is {right['resolution']}; both need one resolution"
-        raise CalibrationError(msg)
-    width, height = (int(v) for v in left["resolution"])
-    intrinsics = _intrinsics(left, "cam0", path), _intrinsics(right, "cam1", path)
-    return rectifying_camera_infos((width, height), *intrinsics, t_01, frame_id)
+    with calibration_values(path):
+        if "T_cn_cnm1" not in right:
+            msg = f"{path}: cam1 has no T_cn_cnm1 (the cam0 -> cam1 transform); run Kalibr's stereo calibration"
+            raise CalibrationError(msg)
+        t_01 = np.asarray(right["T_cn_cnm1"], dtype=np.float64)
+        if t_01.shape != (4, 4):
+            msg = f"{path}: cam1 T_cn_cnm1 is {t_01.shape}, expected a 4x4 matrix"
+            raise CalibrationError(msg)
+        if list(left["resolution"]) != list(right["resolution"]):
+            msg = f"{path}: cam0 is {left['resolution']} but cam1 is {right['resolution']}; both need one resolution"
+            raise CalibrationError(msg)
+        width, height = (int(v) for v in left["resolution"])
+        intrinsics = _intrinsics(left, "cam0", path), _intrinsics(right, "cam1", path)
+        return rectifying_camera_infos((width, height), *intrinsics, t_01, frame_id)
