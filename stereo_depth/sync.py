@@ -238,7 +238,19 @@ class Synchronizer:
                 return None
             substitute = self._substitute(index, stamp)
             choice[index] = None if substitute is None else (substitute, False)
+        if any(c is not None and not c[1] for c in choice.values()) and self._rig_changed(choice):
+            return dict.fromkeys(choice)  # another camera's calibration changed here: the last one is no proof
         return choice
+
+    def _rig_changed(self, choice: dict[int, Choice]) -> bool:
+        """Whether a camera_info of the set differs from the last one of its input."""
+        return any(
+            c is not None
+            and c[1]
+            and index in self._last_used
+            and not self.same_calibration(self._last_used[index][1], c[0][1])
+            for index, c in choice.items()
+        )
 
     def _substitute(self, index: int, stamp: int) -> Stamped | None:
         """The newest camera_info before `stamp`, if the calibration did not change across `stamp`."""

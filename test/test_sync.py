@@ -108,6 +108,24 @@ def test_calibration_change_without_its_camera_info_drops_that_frame_only() -> N
     assert all(m[1].endswith(":B") for _, m in sets[4:])
 
 
+def test_a_lost_camera_info_is_not_stood_in_for_where_the_other_camera_changed() -> None:
+    """A new rig (or mode) whose right camera_info is lost on its first frame: the old right one would
+    pair a new left calibration with an old right one, so that frame is dropped, and counted."""
+
+    def same(a: str, b: str) -> bool:
+        return a.split(":")[1] == b.split(":")[1]
+
+    sync = stereo_sync(same_calibration=same)
+    sets = []
+    for frame, calibration in ((1, "A"), (2, "A"), (3, "B")):
+        for index in (1, 3, 0, 2):
+            if (index, frame) != (3, 3):
+                sets += sync.add(index, frame * 33 * MS, message(index, frame, calibration))
+    sets += sync.flush()  # nothing after it tells what the right camera's calibration became
+    assert [stamp // (33 * MS) for stamp, _ in sets] == [1, 2]
+    assert sync.counters.calibration_unknown == 1 and sync.counters.substituted == [0, 0, 0, 0]
+
+
 def test_images_alone_still_follow_the_exact_and_approximate_rules() -> None:
     exact = Synchronizer(2)
     assert exact.add(0, 10, "l") == [] and exact.add(1, 11, "r") == []

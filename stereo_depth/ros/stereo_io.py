@@ -48,7 +48,9 @@ from stereo_depth.sync import Synchronizer
 T = TypeVar("T")
 QOS_RECHECK_S = 0.25  # reaction to a publisher's matched / incompatible-QoS event
 QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
-IDLE_FLUSH_S = 0.5  # no input for this long: sets waiting only for a camera_info go out
+# No input for this long: sets waiting only for a camera_info go out. Longer than a reliable writer takes
+# to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
+IDLE_FLUSH_S = 5.0
 
 
 class LatestWorker:
@@ -164,7 +166,7 @@ class StereoIONode(Node):
         self._frame = threading.local()  # the sequence number of the set this worker thread processes
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
-        self.create_timer(IDLE_FLUSH_S, self._flush_when_idle)
+        self.create_timer(1.0, self._flush_when_idle)
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
         self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
 
