@@ -3,7 +3,8 @@
 The recipe is the standard CPU one (Zabih & Woodfill census, Hirschmueller SGM):
 
     census (7x9 window, 62 bits in one uint64)
-      -> Hamming cost volume C[y, x, d] (uint8; uint16 when box-summed over ``window_size``)
+      -> Hamming cost volume C[y, x, d] (uint8; uint16 when box-summed over ``window_size``,
+         divided down with P1/P2 where the sums would not fit, see ``cost_divisor``)
       -> 8-path scanline aggregation S = sum_r L_r, P2 shrunk across intensity edges
          (a top-down and a bottom-up sweep side by side, see ``_aggregate_select``)
       -> winner-take-all + uniqueness on S, row by row as soon as S of the row is complete
@@ -29,7 +30,7 @@ from typing import Any, TypeVar
 import cv2
 import numpy as np
 
-__all__ = ["census_sgm", "fill_holes"]
+__all__ = ["census_sgm", "cost_divisor", "fill_holes"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -41,6 +42,7 @@ prange = range  # replaced by numba.prange before any kernel is compiled
 
 _HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
 _SENTINEL = 0x3FFF  # "infinite" path cost in padded disparity slots; two of them still fit in uint16
+PATH_COST_MAX = 8191  # largest matching cost + P2 that keeps 8 summed path costs below 0xFFFF
 
 
 def _kernel(*, parallel: bool = False, fastmath: bool = True, inline: bool = False) -> Callable[[_F], _F]:
@@ -579,12 +581,15 @@ def census_sgm(
     cr = _census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)
     vol, acc = _workspace(left.shape, int(num_disparities))
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol row by row
+    divisor = cost_divisor(ch * cw - 1, window_size, P2)
     if window_size > 1:
         _hamming_volume(cl, cr, int(min_disparity), vol)
-        vol = _box_sum(vol, window_size)
+        vol = _box_sum(vol, window_size, divisor)
         census = None
+    p1 = round(P1 / divisor)
+    p2 = max(p1 + 1, round(P2 / divisor))
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
-    disp, conf = _aggregate_select(vol, census, left, acc, int(P1), int(P2), float(p2_gamma), paths, select)
+    disp, conf = _aggregate_select(vol, census, left, acc, p1, p2, float(p2_gamma), paths, select)
     if median:
         disp = _median3(np.where(np.isnan(disp), _HOLE, disp), _HOLE)
         disp[disp == _HOLE] = np.nan
@@ -649,21 +654,33 @@ def _check_inputs(
         raise ValueError(msg)
 
 
-def _box_sum(vol: np.ndarray, window: int) -> np.ndarray:
-    """Sum costs over a window x window support (edge replicated), with numpy slices.
+def cost_divisor(census_bits: int, window: int, p2: float) -> int:
+    """What matching costs and P1/P2 are divided by so that path costs fit their 16 bits.
 
-    Not on the recommended path (window_size=1): it costs ~30 ms per pass at 640x480x128.
+    A path cost L_r stays below the largest matching cost + P2, and S sums 8 of them: with
+    (census_bits x window^2 + P2) <= PATH_COST_MAX nothing can wrap. Larger windows (or P2) divide
+    costs and penalties alike, which keeps their ratios and drops only the low bits of window-summed
+    costs (StereoParams refuses a P2 so large that it would coarsen single-pixel costs).
+    """
+    return max(1, -(-(census_bits * window * window + round(p2)) // PATH_COST_MAX))
+
+
+def _box_sum(vol: np.ndarray, window: int, divisor: int) -> np.ndarray:
+    """Sum costs over a window x window support (edge replicated), divided by ``divisor``, as uint16.
+
+    Running sums in uint32 (a window of 255 sums 4 M bits); not on the recommended path
+    (window_size=1).
     """
     half = window // 2
-    pad = np.pad(vol, ((half, half), (half, half), (0, 0)), mode="edge")
     h, w, _ = vol.shape
-    rows = np.zeros((h, w + 2 * half, vol.shape[2]), np.uint16)
-    for dy in range(window):
-        rows += pad[dy : dy + h]
-    out = np.zeros(vol.shape, np.uint16)
-    for dx in range(window):
-        out += rows[:, dx : dx + w]
-    return out
+    pad = np.pad(vol, ((half + 1, half), (half + 1, half), (0, 0)), mode="edge").astype(np.uint32)
+    pad[0] = 0
+    pad[:, 0] = 0
+    np.cumsum(pad, axis=0, out=pad)
+    rows = pad[window:] - pad[:h]  # uint32 wraps consistently: differences of running sums stay exact
+    np.cumsum(rows, axis=1, out=rows)
+    sums = rows[:, window:] - rows[:, :w]
+    return (sums // np.uint32(divisor)).astype(np.uint16)
 
 
 def _remove_speckles(disp: np.ndarray, size: int, max_diff: float) -> np.ndarray:
