@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from stereo_depth.core.metrics import Accuracy, accuracy
-from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.core.params import CENSUS_BITS, CENSUS_P2_PER_BIT, StereoParams, make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, ParameterError
 from stereo_depth.scenes import load_scene
@@ -109,6 +109,7 @@ def sweep_settings() -> list[tuple[str, Any]]:
         lo, hi = spec[name]["min"], spec[name]["max"]
         corners += [(name, type(getattr(StereoParams(), name))(v)) for v in (lo, hi)]
     corners.insert(3, ("correlation_window_size", SANE_WINDOW))
+    corners.insert(7, ("P2", float(CENSUS_P2_PER_BIT * CENSUS_BITS)))  # census_sgm's largest at its window 1
     return corners
 
 
