@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 import cv2
 import numpy as np
 
-__all__ = ["census_sgm", "cost_shift", "fill_holes"]
+__all__ = ["census_sgm", "compile_kernels", "cost_shift", "fill_holes"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -605,6 +605,42 @@ def census_sgm(
         disp = np.where(closed == _HOLE, np.float32(np.nan), closed).astype(np.float32)
         conf[filled] = np.float32(gap_confidence)
     return disp, conf
+
+
+def compile_kernels() -> str:
+    """Compile every kernel (or load it from numba's cache) now; returns the cache folder.
+
+    The first compile takes ~30 s per install, then each process loads machine code in well under
+    a second: ``stereo-depth compile`` runs this at install time so a robot's first frame does not
+    wait. The cache sits in ``__pycache__`` beside this module when that is writable, else in
+    NUMBA_CACHE_DIR (or numba's per-user folder).
+    """
+    image = np.zeros((24, 48), np.uint8)
+    disparity, _ = census_sgm(
+        image,
+        image,
+        min_disparity=0,
+        num_disparities=16,
+        window_size=1,
+        P1=20,
+        P2=200,
+        uniqueness_ratio=3,
+        disp12_max_diff=1,
+    )
+    census_sgm(
+        image,
+        image,
+        min_disparity=0,
+        num_disparities=16,
+        window_size=3,
+        P1=20,
+        P2=200,
+        uniqueness_ratio=3,
+        disp12_max_diff=1,
+    )
+    fill_holes(disparity, image)
+    fill_holes(disparity, image, scanline=False)
+    return str(globals()["_census"]._cache._cache_path)
 
 
 def _pad(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
