@@ -15,7 +15,7 @@ from stereo_depth.core.metrics import Accuracy, accuracy
 from stereo_depth.core.params import CENSUS_BITS, CENSUS_P2_PER_BIT, StereoParams, make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, ParameterError
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.scenes import load_scene
 
 from conftest import SCENES
 
