@@ -698,7 +698,8 @@ def cost_shift(census_bits: int, window: int, p1: float, p2: float) -> tuple[int
     max C + 2 P2 <= PATH_COST_MAX nothing can wrap (see ``_recur``). Costs and penalties shift
     together, so their ratios stay; the quality profile (census 62 bits, P2 200) shifts by 1, which
     measured no worse over the 38 ground-truth scenes than 16-bit costs. StereoParams refuses a P2
-    so large that the shift would leave fewer than ~16 cost levels per pixel.
+    so large that the shift would leave fewer than 4 cost levels per pixel (P2 2000 at window 1 still
+    gave bad-2 0.13 on Cones, against 0.12 at the profile's 200).
     """
     largest = census_bits * window * window
     shift = 0

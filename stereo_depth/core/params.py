@@ -17,7 +17,7 @@ from stereo_depth.errors import ParameterError
 SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
 SGBM_COST_MAX = 32767  # OpenCV SGBM's path costs are int16
 CENSUS_BITS = 62  # census_sgm's 7x9 census: the largest Hamming cost of one pixel
-CENSUS_P2_PER_BIT = 4  # census_sgm's P2 limit, in units of the largest matching cost (see census_sgm.cost_shift)
+CENSUS_P2_PER_BIT = 32  # census_sgm's P2 limit, in units of the largest matching cost (see census_sgm.cost_shift)
 OUTPUT_SIZES = ("full", "processed")  # downsample_output choices
 
 
@@ -147,7 +147,7 @@ class StereoParams:
                     p2_limit >= self.P2,  # (ruff reads the upper-case P2 as a constant)
                     f"P2 {self.P2:g} is above what census_sgm can honour with correlation_window_size {window}: "
                     f"at most {p2_limit} ({CENSUS_P2_PER_BIT} x {CENSUS_BITS} census bits x window area); "
-                    "its 8-bit path costs would keep too few levels of matching cost beside such a P2",
+                    "its 8-bit path costs would keep under 4 levels of matching cost beside such a P2",
                 )
             ]
         fixed_lo, fixed_hi = (self.min_disparity - 1) * 16, (self.min_disparity + self.disparity_range) * 16
