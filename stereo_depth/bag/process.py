@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy
+from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.params import StereoParams
@@ -47,6 +47,9 @@ class ProcessOptions:
     png_dir: Path | None = None
     ply_dir: Path | None = None  # one PLY per frame
     ply_frames: int | None = None  # write PLYs for the first N frames only (None: all)
+    window: TimeWindow | None = None  # one shard of a long bag (stereo_depth.fleet); None: the whole bag
+    custom_data: dict[str, str] = field(default_factory=dict)  # recorded in the output's metadata.yaml
+    progress: bool = True  # the per-bag progress line (fleet runs draw one line for all bags instead)
 
 
 @dataclass
@@ -59,6 +62,7 @@ class ProcessSummary:
     seconds: float = 0.0
     stage_ms: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     topics: list[str] = field(default_factory=list)
+    read: ReadStats = field(default_factory=ReadStats)
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
 
@@ -120,9 +124,9 @@ def run_frame(
 class Progress:
     """One `\r` line on stderr with frames/s, only when stderr is a terminal."""
 
-    def __init__(self, total: int) -> None:
+    def __init__(self, total: int, enabled: bool = True) -> None:
         self.total = max(total, 1)
-        self.enabled = sys.stderr.isatty()
+        self.enabled = enabled and sys.stderr.isatty()
         self.start = time.perf_counter()
 
     def update(self, done: int) -> None:
@@ -180,11 +184,17 @@ def process_bag(
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
-        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync) as reader,
-        BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite, compress=options.compress) as writer,
+        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync, window=options.window) as reader,
+        BagWriter(
+            out_bag,
+            storage=options.storage,
+            overwrite=options.overwrite,
+            compress=options.compress,
+            custom_data=options.custom_data,
+        ) as writer,
     ):
         topics = reader.topics
-        progress = Progress(reader.count(topics.names[0]))
+        progress = Progress(reader.count(topics.names[0]), options.progress)
         want_points = "points2" in options.outputs or options.ply_dir is not None
         for frame in reader.frames():
             try:
@@ -205,7 +215,7 @@ def process_bag(
             summary.frames_out += 1
             progress.update(summary.frames_out)
         progress.close()
-        stats = reader.stats
+        stats = summary.read = reader.stats
         summary.left_images, summary.right_images = stats.left_images, stats.right_images
         summary.unmatched = (stats.sync.dropped if stats.sync else 0) + stats.unmatched_at_end
     summary.seconds = time.perf_counter() - start

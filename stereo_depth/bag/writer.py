@@ -41,7 +41,13 @@ class BagWriter:
     """Write messages to named topics; connections are added on a topic's first message."""
 
     def __init__(
-        self, path: Path | str, *, storage: str = "mcap", overwrite: bool = False, compress: bool = True
+        self,
+        path: Path | str,
+        *,
+        storage: str = "mcap",
+        overwrite: bool = False,
+        compress: bool = True,
+        custom_data: dict[str, str] | None = None,
     ) -> None:
         if storage not in STORAGES:
             msg = f"storage '{storage}' is unknown; choose one of {sorted(STORAGES)}"
@@ -54,6 +60,7 @@ class BagWriter:
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
+        self.custom_data = dict(custom_data or {})  # metadata.yaml custom_data: written with the bag, at once
 
     def __enter__(self) -> BagWriter:
         check_output(self.path, self.overwrite)
@@ -65,6 +72,8 @@ class BagWriter:
         writer = Writer(self._tmp / self.path.name, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
         if self.compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in self.custom_data.items():
+            writer.set_custom_data(key, value)
         try:
             writer.open()
         except WriterError as exc:
@@ -75,13 +84,17 @@ class BagWriter:
         return self
 
     def write(self, topic: str, message: Any, timestamp_ns: int) -> None:
+        self.write_raw(topic, message.__msgtype__, serialize(message), timestamp_ns)
+
+    def write_raw(self, topic: str, msgtype: str, raw: bytes | memoryview, timestamp_ns: int) -> None:
+        """One message already serialized (CDR), e.g. copied from another bag."""
         assert self._writer is not None, "use BagWriter as a context manager"
         connection = self._connections.get(topic)
         if connection is None:
-            connection = self._writer.add_connection(topic, message.__msgtype__, typestore=typestore())
+            connection = self._writer.add_connection(topic, msgtype, typestore=typestore())
             self._connections[topic] = connection
             self.counts[topic] = 0
-        self._writer.write(connection, timestamp_ns, serialize(message))
+        self._writer.write(connection, timestamp_ns, raw)
         self.counts[topic] += 1
 
     def __exit__(

@@ -14,6 +14,7 @@ from stereo_depth.bag.process import OUTPUTS, ProcessOptions, process_bag
 from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import add_param_options
+from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
 
@@ -28,9 +29,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
             "points2 and left/image_rect with the input stamps."
         ),
     )
-    parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
-    parser.add_argument("out_bag", type=Path, metavar="OUT_BAG")
+    parser.add_argument(
+        "paths",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="IN_BAG OUT_BAG; or, with --out-dir DIR, any number of bags and folders searched for bags",
+    )
     add_process_options(parser)
+    add_fleet_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -156,6 +163,13 @@ def run(args: argparse.Namespace) -> int:
     params = params_from(args)
     options = options_from(args)
     interrupt_on_sigterm()
+    if args.out_dir is not None:
+        return run_many(args, params, options)
+    check_single_bag_options(args)
+    if len(args.paths) != 2:
+        msg = f"process takes IN_BAG OUT_BAG, or inputs with --out-dir DIR; got {len(args.paths)} paths"
+        raise ParameterError(msg)
+    args.in_bag, args.out_bag = args.paths
     summary = process_bag(args.in_bag, args.out_bag, params, options)
     for line in summary.lines():
         print(line)
