@@ -81,13 +81,23 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.fixture(scope="module", autouse=True)
+def ray_settings() -> Iterator[None]:
+    """Ray on loopback for tests: no token file written to ~/.ray (which a later head would then
+    demand), no usage statistics."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RAY_AUTH_MODE", "disabled")
+        patch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+        yield
+
+
 @pytest.fixture(scope="module")
 def ray_head(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A Ray cluster head as `ray start --head` makes one, on loopback; stopped with its processes after."""
     pytest.importorskip("ray")
     port = free_port()
     temp_dir = Path(f"/tmp/ray_sd_{os.getpid()}")  # short: Ray's socket paths must fit 107 bytes
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    env = dict(os.environ)
     ray = Path(sys.executable).parent / "ray"
     command = [str(ray), "start", "--head", "--block", f"--port={port}", "--node-ip-address=127.0.0.1"]
     command += ["--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp_dir}"]
@@ -135,7 +145,9 @@ def test_bags_on_a_ray_cluster_equal_one_bag_runs_and_a_damaged_one_is_reported(
 
     # A second run (on local workers this time) skips what is finished, leaving it untouched.
     stamps = {name: (out / name / "metadata.yaml").stat().st_mtime_ns for name in GOOD}
-    code, errors, printed = run_fleet(capsys, str(inputs), "--out-dir", str(out), "--jobs", "1", "--report", str(report))
+    code, errors, printed = run_fleet(
+        capsys, str(inputs), "--out-dir", str(out), "--jobs", "1", "--report", str(report)
+    )
     assert code == 1 and len(errors) == 1 and "damaged" in errors[0]
     assert "3 skipped" in printed
     assert {name: (out / name / "metadata.yaml").stat().st_mtime_ns for name in GOOD} == stamps

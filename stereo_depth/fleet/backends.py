@@ -7,6 +7,7 @@ only when chosen: it is an optional dependency.
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import signal
@@ -105,7 +106,12 @@ class RayBackend:
         started_here = not ray.is_initialized()
         if started_here:
             try:
-                ray.init(address=self.address or "local", include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+                ray.init(
+                    address=self.address or "local",
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    logging_level=logging.ERROR,
+                )
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 msg = f"cannot start or join Ray at {self.address or 'a new local instance'}: {exc}"
                 raise StereoDepthError(msg) from exc
