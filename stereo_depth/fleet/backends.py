@@ -70,7 +70,8 @@ class LocalPool:
         if not tasks:
             return
         context = multiprocessing.get_context("spawn")
-        pool = context.Pool(self.jobs, initializer=_start_worker, initargs=(tasks[0].params,))
+        workers = min(self.jobs, len(tasks))
+        pool = context.Pool(workers, initializer=_start_worker, initargs=(tasks[0].params,))
         try:
             yield from pool.imap_unordered(_pool_task, tasks, chunksize=1)
         except BaseException:
