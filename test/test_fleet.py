@@ -164,8 +164,7 @@ def long_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """40 frames at 10 Hz whose pairing is hard at 1 s borders: the right camera's messages recorded
     150 ms late (sets complete after a border), the right image before the 1 s border and the left
     image on the 2 s border missing (one pass leaves those two frames unpaired)."""
-    folder = tmp_path_factory.mktemp("long")
-    plain = make_bag(folder / "plain", *[SCENES / "artl"] * 40)
+    plain = make_bag(tmp_path_factory.mktemp("plain") / "plain", *[SCENES / "artl"] * 40)
     start = min(t for _, _, t, _ in messages(plain))
     records = []
     for topic, msgtype, stamp, raw in messages(plain):
@@ -173,31 +172,49 @@ def long_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
         if (frame == 9 and topic.endswith("right/image_raw")) or (frame == 20 and topic.endswith("left/image_raw")):
             continue
         records.append((stamp + (150_000_000 if "/right/" in topic else 0), topic, msgtype, raw))
-    bag = folder / "long"
+    bag = tmp_path_factory.mktemp("long") / "long"  # alone in its folder
     with BagWriter(bag, compress=False) as writer:
         for log_time, topic, msgtype, raw in sorted(records, key=lambda r: r[0]):
             writer.write_raw(topic, msgtype, raw, log_time)
     return bag
 
 
-def test_a_sharded_long_bag_equals_one_pass_on_a_local_ray_instance(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path, long_bag: Path
-) -> None:
-    pytest.importorskip("ray")
-    one_pass = tmp_path / "one_pass"
+@pytest.fixture(scope="module")
+def long_one_pass(long_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> list[Message]:
+    one_pass = tmp_path_factory.mktemp("one_pass") / "long"
     assert main(["process", str(long_bag), str(one_pass), *FAST]) == 0
     expected = messages(one_pass)
     assert len(expected) == 2 * 38  # two frames have no partner
+    return expected
+
+
+def test_a_sharded_long_bag_equals_one_pass_on_a_local_ray_instance(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, long_bag: Path, long_one_pass: list[Message]
+) -> None:
+    pytest.importorskip("ray")
 
     out, report = tmp_path / "out", tmp_path / "report.json"
     code, errors, _ = run_fleet(
         capsys, str(long_bag), "--out-dir", str(out), "--shard-seconds", "1", "--ray", "--report", str(report)
     )
     assert code == 0, errors
-    assert messages(out / "long") == expected
+    assert messages(out / "long") == long_one_pass
     (bag,) = json.loads(report.read_text())["bags"]
     assert bag["shards"] == 5 and bag["frames_in"] == 39 and bag["frames_out"] == 38
     assert hidden_leftovers(out) == []
+
+
+def test_shards_on_local_workers_equal_one_pass_and_the_output_folder_is_not_an_input(
+    capsys: pytest.CaptureFixture[str], long_bag: Path, long_one_pass: list[Message]
+) -> None:
+    out = long_bag.parent / "fleet_out"  # inside the input folder: its bags are outputs, not inputs
+    for _ in range(2):  # the second run finds the first one's output and skips it
+        code, errors, printed = run_fleet(
+            capsys, str(long_bag.parent), "--out-dir", str(out), "--jobs", "2", "--shard-seconds", "0.7"
+        )
+        assert code == 0, errors
+    assert "1 skipped" in printed
+    assert messages(out / "long") == long_one_pass
 
 
 def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(tmp_path: Path, long_bag: Path) -> None:

@@ -36,8 +36,9 @@ def find_bags(path: Path) -> list[Path]:
 
 
 def plan_inputs(paths: list[Path], out_dir: Path) -> list[BagInput]:
-    """Every bag under `paths`, each into `out_dir/<bag folder name>`; names must not collide."""
-    bags = [bag for path in paths for bag in find_bags(path)]
+    """Every bag under `paths`, each into `out_dir/<bag folder name>`; names must not collide.
+    Bags inside `out_dir` are outputs of an earlier run, not inputs."""
+    bags = [bag for path in paths for bag in find_bags(path) if out_dir.resolve() not in bag.resolve().parents]
     if not bags:
         msg = f"no bag (a folder with {BAG_MARKER}) found in {', '.join(map(str, paths))}"
         raise BagError(msg)
