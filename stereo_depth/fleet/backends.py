@@ -11,7 +11,7 @@ import logging
 import multiprocessing
 import os
 import signal
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any, Protocol
 
 from stereo_depth.core.params import StereoParams
@@ -21,14 +21,17 @@ from stereo_depth.fleet.tasks import Task, TaskResult, matcher_cores, run_task, 
 CANCEL_GRACE_SECONDS = 10.0  # how long cancelled Ray tasks get to remove their partial output
 
 
+Results = Generator[TaskResult, None, None]  # closing it cancels what has not finished
+
+
 class Backend(Protocol):
-    def run(self, tasks: list[Task]) -> Iterator[TaskResult]: ...
+    def run(self, tasks: list[Task]) -> Results: ...
 
 
 class InProcess:
     """`--jobs 1`: one task after the other, here; Ctrl-C unwinds through process_bag itself."""
 
-    def run(self, tasks: list[Task]) -> Iterator[TaskResult]:
+    def run(self, tasks: list[Task]) -> Results:
         for task in tasks:
             yield run_task(task)
 
@@ -66,7 +69,7 @@ class LocalPool:
     def __init__(self, jobs: int) -> None:
         self.jobs = jobs
 
-    def run(self, tasks: list[Task]) -> Iterator[TaskResult]:
+    def run(self, tasks: list[Task]) -> Results:
         if not tasks:
             return
         context = multiprocessing.get_context("spawn")
@@ -100,7 +103,7 @@ class RayBackend:
     def __init__(self, address: str | None) -> None:
         self.address = address or None
 
-    def run(self, tasks: list[Task]) -> Iterator[TaskResult]:
+    def run(self, tasks: list[Task]) -> Results:
         if not tasks:
             return
         ray = import_ray()

@@ -108,9 +108,10 @@ class FleetRun:
         tasks = [task for plan in self.plans.values() for task in plan.tasks]
         progress = ProgressLine(len(self.plans))
         start = time.perf_counter()
+        results = backend_for(self.settings).run(tasks)
         try:
             progress.update(self.reports)
-            for result in backend_for(self.settings).run(tasks):
+            for result in results:
                 plan = self.plans[result.bag]
                 plan.results.append(result)
                 plan.report.frames_in += result.frames_in
@@ -120,6 +121,7 @@ class FleetRun:
                     self._finish(plan)
                 progress.update(self.reports)
         finally:
+            results.close()  # on Ctrl-C or an error: cancels the tasks left and waits for running ones
             progress.close()
             for plan in self.plans.values():
                 if plan.report.status == "cancelled":
@@ -158,7 +160,6 @@ class FleetRun:
     def _merge(self, plan: BagPlan) -> None:
         parts = sorted(plan.results, key=lambda r: r.shard)
         check_borders(plan.bag.name, parts)
-        assert plan.parts_dir is not None
         merge(
             [task.output for task in sorted(plan.tasks, key=lambda t: t.shard)],
             plan.bag.output,
