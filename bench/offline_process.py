@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from stereo_depth.bag.process import frame_outputs, run_frame
+from stereo_depth.bag.process import ProcessOptions, frame_outputs, run_frame
 from stereo_depth.bag.reader import StereoBagReader
 from stereo_depth.bag.types import rosbags_types, typestore
 from stereo_depth.bag.writer import BagWriter
@@ -82,14 +82,15 @@ def ours(bag: Path, out: Path, profile: str, options: list[str]) -> float:
 def ours_unwritten(bag: Path, profile: str) -> float:
     """frames/s of what `process` does per frame without the storage: read + pair, pipeline, every output
     message built (stereo_depth.bag.process's own functions), nothing written."""
-    types, params = rosbags_types(), make_params(profile)
+    types, params, options = rosbags_types(), make_params(profile), ProcessOptions()
     pipeline = StereoPipeline(params)
     start = time.perf_counter()
     done = 0
     with StereoBagReader(bag) as reader:
         for frame in reader.frames():
-            result = run_frame(pipeline, frame, reader.topics.rectified)
-            frame_outputs(types, frame.left_image.header, result, params)
+            names = reader.topics.names
+            decoded, result = run_frame(pipeline, frame, reader.topics.rectified, options.output, names)
+            frame_outputs(types, pipeline, decoded, result, options)
             done += 1
     return done / (time.perf_counter() - start)
 

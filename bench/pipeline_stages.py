@@ -28,8 +28,8 @@ from stereo_depth.core.matching import Matcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.frames import disparity_message
 from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
-from stereo_depth.outputs import disparity_message
 from stereo_depth.ros.types import RCLPY_TYPES
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"

@@ -164,6 +164,20 @@ def test_check_calibration_says_error_with_a_rotated_calibration(
     assert "recalibrate" in stdout
 
 
+def test_check_calibration_says_warn_with_a_slightly_rotated_calibration(
+    euroc_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """0.12 degrees about the baseline puts the rows ~1 px apart (measured 0.98): WARN, exit status 1."""
+    left, right = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
+    (tmp_path / "left.yaml").write_text(camera_info_to_yaml(left, "left"))
+    (tmp_path / "right.yaml").write_text(camera_info_to_yaml(rotated_about_baseline(right, 0.12), "right"))
+    code, stdout, stderr = run_cli(["check-calibration", str(euroc_bag), "--camera-info", str(tmp_path)], capsys)
+    assert code == 1 and "ERROR:" not in stderr
+    lines = stdout.strip().splitlines()
+    assert all(line.endswith("WARN") for line in lines[1:7])
+    assert lines[-1].startswith("verdict: WARN: 6 of 6 frames judged")
+
+
 def test_a_second_calibration_replaces_the_first_as_a_whole(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "calib"
     assert run_cli(["calibrate", str(CHESSBOARD), *CALIBRATE, "--out", str(out)], capsys)[0] == 0

@@ -26,7 +26,6 @@ from stereo_depth.messages import (
     image_to_array,
     image_to_pipeline,
     make_header,
-    points_to_cloud,
 )
 from stereo_depth.scenes import load_scene
 
@@ -149,26 +148,30 @@ def test_disparity_message_is_offset_adjusted_like_stereo_image_proc(camera: Ste
 
 
 @pytest.mark.parametrize(("avoid_padding", "offsets", "step"), [(False, [0, 4, 8, 16], 32), (True, [0, 4, 8, 12], 16)])
-def test_cloud_layout_matches_stereo_image_proc(avoid_padding: bool, offsets: list[int], step: int) -> None:
-    points = np.random.default_rng(0).random((3, 4, 3)).astype(np.float32)
-    points[1, 2] = np.nan
+def test_cloud_layout_matches_stereo_image_proc(
+    camera: StereoCamera, avoid_padding: bool, offsets: list[int], step: int
+) -> None:
+    depth = (1.0 + np.random.default_rng(0).random((3, 4))).astype(np.float32)
+    depth[1, 2] = np.nan
+    rays = Rays(x=np.linspace(-0.5, 0.5, 4, dtype=np.float32)[None, :], y=np.array([[-0.2], [0.0], [0.3]], np.float32))
     color = np.zeros((3, 4, 3), np.uint8)
     color[0, 0] = (0, 0, 255)  # BGR red
-    msg = wire(points_to_cloud(T, HEADER, points, color, avoid_padding))
+    msg = wire(depth_to_cloud(T, HEADER, depth, rays, color, avoid_padding))
     assert [f.offset for f in msg.fields] == offsets and msg.point_step == step  # type: ignore[attr-defined]
     assert (msg.height, msg.width, msg.is_dense) == (3, 4, False)  # type: ignore[attr-defined]
     xyz, rgb = cloud_to_arrays(msg)
-    np.testing.assert_array_equal(xyz, points)
+    np.testing.assert_array_equal(xyz, depth_to_points(depth, rays))
+    assert np.isnan(xyz[1, 2]).all() and xyz[2, 1, 1] == np.float32(0.3) * depth[2, 1]
     assert rgb is not None and rgb[0, 0] == 0x00FF0000
 
 
 @pytest.mark.parametrize("avoid_padding", [False, True])
 @pytest.mark.parametrize("grey", [False, True])
-def test_cloud_computed_in_place_is_the_cloud_of_the_points_byte_for_byte(
+def test_cloud_in_a_reused_buffer_is_the_cloud_in_a_fresh_one_byte_for_byte(
     camera: StereoCamera, avoid_padding: bool, grey: bool
 ) -> None:
-    """The live node writes x, y, z straight into a reused buffer; `process` packs the points array.
-    Both must give the same bytes, NaN patterns and untouched padding included, frame after frame."""
+    """Nodes and `process` write x, y, z straight into a buffer reused frame after frame: it must give
+    the bytes a fresh buffer gives, NaN patterns and untouched padding included."""
     scene = load_scene(SCENES / "artl")
     color = cv2.cvtColor(scene.left, cv2.COLOR_BGR2GRAY) if grey else scene.left
     rays = Rays.for_camera(camera)
@@ -176,7 +179,8 @@ def test_cloud_computed_in_place_is_the_cloud_of_the_points_byte_for_byte(
     assert scene.gt is not None
     for disparity in (scene.gt, scene.gt[:, ::-1].copy()):  # the second frame reuses the buffer
         depth = disparity_to_depth(disparity, camera)
-        expected = wire(points_to_cloud(T, HEADER, depth_to_points(depth, rays), color, avoid_padding))
+        expected = wire(depth_to_cloud(T, HEADER, depth, rays, color, avoid_padding))
         in_place = wire(depth_to_cloud(T, HEADER, depth, rays, color, avoid_padding, buffer))
         assert bytes(in_place.data) == bytes(expected.data)  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(cloud_to_arrays(in_place)[0], depth_to_points(depth, rays))
         assert np.isnan(cloud_to_arrays(in_place)[0]).any()  # invalid pixels are NaN, not zeros

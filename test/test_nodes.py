@@ -112,7 +112,8 @@ def nodes(
 ) -> Iterator[dict[str, NodeProcess]]:
     logs = tmp_path_factory.mktemp("node_logs")
     processes = {
-        "live": NodeProcess("stereo_node", "/live", ros_env, logs),
+        # a misspelt parameter: warned about once at start-up, otherwise ignored (the tests below see defaults)
+        "live": NodeProcess("stereo_node", "/live", ros_env, logs, ["-p", "dispartiy_range:=128"]),
         "rectify_left": NodeProcess("rectify_node", "/split/left", ros_env, logs, ["-r", "image:=image_raw"]),
         "rectify_right": NodeProcess("rectify_node", "/split/right", ros_env, logs, ["-r", "image:=image_raw"]),
         "disparity": NodeProcess("disparity_node", "/split", ros_env, logs),
@@ -363,6 +364,15 @@ def test_signal_ends_every_node_cleanly(
     ]
     ros.wait_for_nodes(processes)
     stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
+
+
+def test_a_misspelt_parameter_is_named_once_with_the_closest_known_one(nodes: dict[str, NodeProcess]) -> None:
+    live = nodes["live"]
+    wait_until(lambda: "unknown parameters" in live.output(), "the start-up warning")
+    lines = [line for line in live.output().splitlines() if "unknown parameters" in line]
+    assert len(lines) == 1 and "WARN" in lines[0]
+    assert "'dispartiy_range' (did you mean 'disparity_range'?)" in lines[0]
+    assert "unknown parameters" not in nodes["disparity"].output()
 
 
 def test_module_nodes_survived_the_tests(nodes: dict[str, NodeProcess]) -> None:

@@ -1,7 +1,7 @@
 """A recorded stereo bag through the live node's pipeline, into a bag of results.
 
-The same `StereoPipeline`, the same message conversions and the same synchronizer as `stereo_node`,
-so a bag processed here and the same bag replayed into the node give bit-identical disparity.
+The same frame functions (frames.py), `StereoPipeline` and synchronizer as `stereo_node`, so a bag
+processed here and the same bag replayed into the node give bit-identical outputs.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,20 +20,23 @@ from stereo_depth.bag.export import disparity_picture, write_ply
 from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
+from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.errors import StereoDepthError
-from stereo_depth.messages import (
-    MessageTypes,
-    array_to_image,
-    camera_info_from_msg,
-    image_to_pipeline,
-    points_to_cloud,
+from stereo_depth.frames import (
+    GEOMETRY_OUTPUTS,
+    OUTPUTS,
+    Geometry,
+    OutputOptions,
+    StereoFrame,
+    decode_frame,
+    geometry_outputs,
+    image_outputs,
+    match_frame,
+    result_geometry,
 )
-from stereo_depth.outputs import disparity_message
-
-# What stereo_node publishes by default, by output name (left/image_rect_color too when the input has colour).
-OUTPUTS = ("disparity", "depth", "points2", "left/image_rect")
+from stereo_depth.messages import CloudBuffer, MessageTypes
 
 
 @dataclass
@@ -42,7 +45,8 @@ class ProcessOptions:
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
-    outputs: tuple[str, ...] = OUTPUTS
+    outputs: tuple[str, ...] = OUTPUTS  # what stereo_node publishes by default (colour, confidence: when there)
+    output: OutputOptions = field(default_factory=OutputOptions)  # how outputs are built, as the nodes'
     overwrite: bool = False
     png_dir: Path | None = None
     ply_dir: Path | None = None  # one PLY per frame
@@ -90,35 +94,32 @@ class ProcessSummary:
         return out
 
 
-def frame_outputs(
-    types: MessageTypes, header: Any, result: StereoResult, params: StereoParams, outputs: tuple[str, ...] = OUTPUTS
-) -> dict[str, Any]:
-    """The messages stereo_node publishes for one frame (with its default options), by output name;
-    only those named in `outputs`."""
-    assert result.camera is not None
-    messages: dict[str, Any] = {}
-    if "disparity" in outputs:
-        messages["disparity"] = disparity_message(types, header, result.disparity, result.camera, params)
-    if "depth" in outputs:
-        assert result.depth is not None
-        messages["depth"] = array_to_image(types, header, result.depth, "32FC1")
-    if "points2" in outputs:
-        assert result.points is not None
-        color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-        messages["points2"] = points_to_cloud(types, header, result.points, color)
-    if "left/image_rect" in outputs:
-        messages["left/image_rect"] = array_to_image(types, header, result.left_rect)
-        if result.left_rect_color is not None:
-            messages["left/image_rect_color"] = array_to_image(types, header, result.left_rect_color)
-    return messages
-
-
 def run_frame(
-    pipeline: StereoPipeline, frame: StereoMessages, rectified: bool, want_points: bool = True
-) -> StereoResult:
-    camera = pipeline.camera_for(camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info))
-    left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
-    return pipeline.process(left, right, camera, rectified=rectified, want_points=want_points)
+    pipeline: StereoPipeline, frame: StereoMessages, rectified: bool, output: OutputOptions, names: Sequence[str]
+) -> tuple[StereoFrame, StereoResult]:
+    """Decode and match one matched set, as stereo_node's first stage does; `names`: the input topics."""
+    messages = (frame.left_image, frame.left_info, frame.right_image, frame.right_info)
+    decoded = decode_frame(messages, pipeline, output, rectified=rectified, names=names)
+    return decoded, match_frame(pipeline, decoded, names)
+
+
+def frame_outputs(
+    types: MessageTypes,
+    pipeline: StereoPipeline,
+    frame: StereoFrame,
+    result: StereoResult,
+    options: ProcessOptions,
+    cloud_buffer: CloudBuffer | None = None,
+) -> tuple[dict[str, Any], Geometry | None]:
+    """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
+    the geometry they were built from (None when no depth output or PLY was asked for)."""
+    messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
+    wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
+    if not wanted and options.ply_dir is None:
+        return messages, None
+    geometry = result_geometry(pipeline, result)
+    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, cloud_buffer))
+    return messages, geometry
 
 
 class Progress:
@@ -146,6 +147,7 @@ def _export(
     index: int,
     frame: StereoMessages,
     result: StereoResult,
+    geometry: Geometry | None,
     params: StereoParams,
     options: ProcessOptions,
     summary: ProcessSummary,
@@ -157,9 +159,9 @@ def _export(
         cv2.imwrite(str(path), disparity_picture(left, result.disparity, params.min_disparity + params.disparity_range))
         summary.pictures.append(path)
     wants_ply = options.ply_frames is None or index < options.ply_frames
-    if options.ply_dir is not None and wants_ply and result.points is not None:
+    if options.ply_dir is not None and wants_ply and geometry is not None:
         path = options.ply_dir / f"{stem}.ply"
-        write_ply(path, result.points, left)
+        write_ply(path, depth_to_points(geometry.depth, geometry.rays), geometry.image)
         summary.clouds.append(path)
 
 
@@ -195,21 +197,21 @@ def process_bag(
     ):
         topics = reader.topics
         progress = Progress(reader.count(topics.names[0]), options.progress)
-        want_points = "points2" in options.outputs or options.ply_dir is not None
+        cloud_buffer = CloudBuffer()  # the writer serializes each message before the next frame reuses it
         for frame in reader.frames():
             try:
-                result = run_frame(pipeline, frame, topics.rectified, want_points)
+                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.names)
+                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, cloud_buffer)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
-            header = frame.left_image.header
-            for name, message in frame_outputs(types, header, result, params, options.outputs).items():
+            for name, message in messages.items():
                 writer.write(topics.output(name), message, frame.stamp_ns)
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))
             for stage, ms in result.timings_ms.items():
                 summary.stage_ms[stage] += ms
-            _export(summary.frames_out, frame, result, params, options, summary)
+            _export(summary.frames_out, frame, result, geometry, params, options, summary)
             if on_frame is not None:
                 on_frame(summary.frames_out, frame, result)
             summary.frames_out += 1

@@ -10,13 +10,15 @@ from typing import Any
 
 import yaml
 
-from stereo_depth.bag.process import OUTPUTS, ProcessOptions, process_bag
+from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import add_param_options
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
+from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
+from stereo_depth.settings import unknown_parameters_line
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -72,7 +74,10 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
         choices=OUTPUTS,
         default=list(OUTPUTS),
         metavar="NAME",
-        help=f"topics to write (default all: {' '.join(OUTPUTS)}); a VGA points2 is 10 MB a frame",
+        help=(
+            f"topics to write (default all: {' '.join(OUTPUTS)}; colour and confidence when the input and "
+            "matcher give them); a VGA points2 is 10 MB a frame"
+        ),
     )
     parser.add_argument(
         "--compress", action="store_true", help="zstd-compress the MCAP chunks (smaller, about 2x slower to write)"
@@ -112,12 +117,30 @@ def file_parameters(args: argparse.Namespace) -> dict[str, Any]:
     return read_params_file(args.params) if getattr(args, "params", None) else {}
 
 
+def _given(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(processing, output) values: those of --params FILE, then --set on top. An unknown --set name
+    is an error; unknown keys in the file (it may configure other nodes too) get one warning line."""
+    stereo_names, output_names = {*field_names(), *COMPAT_ALIASES}, set(output_option_names())
+    from_file = file_parameters(args)
+    assignments = parse_assignments(args.assignments)
+    for name in assignments:
+        if name not in stereo_names | output_names:
+            reason = unknown_parameters_line([name]) or f"'{name}' is a live node's option, not used offline"
+            msg = f"--set: {reason}"
+            raise ParameterError(msg)
+    values = {**from_file, **assignments}
+    stereo = {k: v for k, v in values.items() if k in stereo_names}
+    return stereo, {k: v for k, v in values.items() if k in output_names}
+
+
 def params_from(args: argparse.Namespace) -> StereoParams:
     """--profile, then the StereoParams keys of --params FILE, then --set (the last one wins)."""
-    known = set(field_names()) | set(COMPAT_ALIASES)
-    overrides = {k: v for k, v in file_parameters(args).items() if k in known}
-    overrides.update(parse_assignments(args.assignments))
-    return make_params(args.profile, overrides)
+    return make_params(args.profile, _given(args)[0])
+
+
+def output_options_from(args: argparse.Namespace) -> OutputOptions:
+    """The OutputOptions keys of --params FILE, then --set: outputs built as the nodes build them."""
+    return make_output_options(_given(args)[1])
 
 
 def sync_from(args: argparse.Namespace) -> SyncPolicy:
@@ -144,6 +167,7 @@ def options_from(args: argparse.Namespace) -> ProcessOptions:
         storage=args.storage,
         compress=args.compress,
         outputs=tuple(args.outputs),
+        output=output_options_from(args),
         overwrite=args.overwrite,
         png_dir=args.png,
         ply_dir=args.ply,
@@ -159,8 +183,16 @@ def interrupt_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+def warn_unknown_file_keys(args: argparse.Namespace) -> None:
+    """One line for --params keys no stereo_depth node knows (a typo would otherwise do nothing)."""
+    line = unknown_parameters_line(file_parameters(args))
+    if line is not None:
+        print(f"WARNING: --params {args.params}: {line}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     params = params_from(args)
+    warn_unknown_file_keys(args)
     options = options_from(args)
     interrupt_on_sigterm()
     if args.out_dir is not None:

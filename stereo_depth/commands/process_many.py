@@ -77,7 +77,8 @@ def check_single_bag_options(args: argparse.Namespace) -> None:
         if value is not None
     ]
     if given:
-        msg = f"{', '.join(given)} {'needs' if len(given) == 1 else 'need'} --out-dir DIR (e.g. stereo-depth process IN... --out-dir DIR)"
+        verb = "needs" if len(given) == 1 else "need"
+        msg = f"{', '.join(given)} {verb} --out-dir DIR (e.g. stereo-depth process IN... --out-dir DIR)"
         raise ParameterError(msg)
 
 

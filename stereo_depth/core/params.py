@@ -181,10 +181,11 @@ def field_names() -> list[str]:
     return [f.name for f in dataclasses.fields(StereoParams)]
 
 
-def coerce(name: str, value: Any) -> Any:
-    """Convert a value given as text or a looser type (CLI, YAML) to the field's type."""
-    types = {f.name: f.type for f in dataclasses.fields(StereoParams)}
-    kind = types[name]
+def coerce(name: str, value: Any, kind: Any = None) -> Any:
+    """Convert a value given as text or a looser type (CLI, YAML) to the field's type (`kind`: the
+    type of a field of another dataclass than StereoParams)."""
+    if kind is None:
+        kind = {f.name: f.type for f in dataclasses.fields(StereoParams)}[name]
     try:
         if kind in ("bool", bool):
             if isinstance(value, str):

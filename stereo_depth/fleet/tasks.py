@@ -62,6 +62,7 @@ def record(params: StereoParams, options: ProcessOptions) -> str:
         "sync": dataclasses.asdict(options.sync),
         "namespace": options.namespace,
         "outputs": list(options.outputs),
+        "output": dataclasses.asdict(options.output),
         "storage": options.storage,
         "compress": options.compress,
     }

@@ -8,7 +8,7 @@ from typing import Any
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.outputs import disparity_message
+from stereo_depth.frames import image_outputs
 from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -29,17 +29,15 @@ class DisparityNode(StereoIONode):
         self._disparity = self.output(DisparityImage, "disparity")
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
-        assert self.pipeline is not None and settings.stereo is not None
-        left_msg = messages[0]
+        assert settings.stereo is not None
         start = time.perf_counter()
-        left, right, camera = self.read_stereo_pair(messages, settings.options)
+        frame = self.read_frame(messages, settings, rectified=True)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        result = self.match_pair(left, right, camera, rectified=True)
+        result = self.match(frame)
         start = time.perf_counter()
-        assert result.camera is not None  # the processed-size camera with downsample_output: processed
-        message = disparity_message(RCLPY_TYPES, left_msg.header, result.disparity, result.camera, settings.stereo)
-        self._disparity.publish(message)
+        for message in image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",)).values():
+            self._disparity.publish(message)
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}
 

@@ -16,9 +16,11 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import disparity_to_depth
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
+from stereo_depth.frames import Geometry, geometry_outputs
 from stereo_depth.messages import CloudBuffer, disparity_from_msg
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
-from stereo_depth.ros.stereo_io import StereoIONode, cloud_message, run_node, timed
+from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
+from stereo_depth.ros.types import RCLPY_TYPES
 
 
 class PointCloudNode(StereoIONode):
@@ -40,7 +42,7 @@ class PointCloudNode(StereoIONode):
         assert self.pipeline is not None
         image_msg, left_info, right_info, disparity_msg = messages
         start = time.perf_counter()
-        image = self.read_image(0, image_msg, settings.options)
+        image = self.read_image(0, image_msg, settings)
         camera = self.stereo_camera(1, left_info, 2, right_info)
         disparity = self.read_input(3, disparity_from_msg, disparity_msg)
         self._check_sizes(image.shape[:2], disparity.shape, camera)
@@ -48,11 +50,12 @@ class PointCloudNode(StereoIONode):
         timed(stages, "decode", start)
         start = time.perf_counter()
         depth = disparity_to_depth(disparity, camera, offset_adjusted=True)
-        rays = self.pipeline.rays_for(camera)
-        cloud = cloud_message(image_msg.header, depth, rays, image, settings.options, self._cloud_buffer)
+        geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), image)
+        output = settings.output
+        cloud = geometry_outputs(RCLPY_TYPES, image_msg.header, geometry, output, ("points2",), self._cloud_buffer)
         timed(stages, "points", start)
         start = time.perf_counter()
-        self._points.publish(cloud)
+        self._points.publish(cloud["points2"])
         timed(stages, "publish", start)
         return stages
 

@@ -34,7 +34,7 @@ class RectifyNode(StereoIONode):
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         image_msg, info_msg = messages
         start = time.perf_counter()
-        image = self.read_image(0, image_msg, settings.options)
+        image = self.read_image(0, image_msg, settings)
         maps = self._maps_for(self.read_input(1, camera_info_from_msg, info_msg), image.shape)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)

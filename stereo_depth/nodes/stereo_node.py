@@ -26,11 +26,37 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
-from stereo_depth.messages import CloudBuffer, array_to_image, stamp_to_ns
-from stereo_depth.outputs import disparity_message
+from stereo_depth.frames import (
+    GEOMETRY_OUTPUTS,
+    IMAGE_OUTPUTS,
+    OutputOptions,
+    StereoFrame,
+    geometry_outputs,
+    image_outputs,
+    result_geometry,
+)
+from stereo_depth.messages import CloudBuffer
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
-from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, cloud_message, run_node, timed
+from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
+
+OUTPUT_TYPES = {
+    "left/image_rect": Image,
+    "left/image_rect_color": Image,
+    "disparity": DisparityImage,
+    "confidence": Image,
+    "depth": Image,
+    "points2": PointCloud2,
+}
+# the publish_* parameter that switches each output on or off
+SWITCHES = {
+    "left/image_rect": "publish_rectified",
+    "left/image_rect_color": "publish_rectified",
+    "disparity": "publish_disparity",
+    "confidence": "publish_confidence",
+    "depth": "publish_depth",
+    "points2": "publish_points",
+}
 
 
 class StereoNode(StereoIONode):
@@ -57,13 +83,8 @@ class StereoNode(StereoIONode):
 
     def __init__(self) -> None:
         super().__init__("stereo_node")
-        self._rect = self.output(Image, "left/image_rect")
-        self._rect_color = self.output(Image, "left/image_rect_color")
-        self._disparity = self.output(DisparityImage, "disparity")
-        self._depth = self.output(Image, "depth")
-        self._points = self.output(PointCloud2, "points2")
+        self._output_publishers = {name: self.output(msg_type, name) for name, msg_type in OUTPUT_TYPES.items()}
         self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
-        self._confidence = self.output(Image, "confidence")
         # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
         self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
         self._check_idle = threading.Event()
@@ -73,63 +94,55 @@ class StereoNode(StereoIONode):
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         assert self.pipeline is not None and settings.stereo is not None
-        header = messages[0].header
         options = settings.options
         start = time.perf_counter()
-        left, right, camera = self.read_stereo_pair(messages, options)
+        frame = self.read_frame(messages, settings, rectified=False)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        result = self.match_pair(left, right, camera)
+        result = self.match(frame)
         with self.outputs_in_order() as newest:
             if not newest:
                 return None
             start = time.perf_counter()
-            self._publish_images(header, result, settings, options)
+            wanted = self._wanted(IMAGE_OUTPUTS, options)
+            self._publish(image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, wanted))
             timed(stages, "publish", start)
-            self._maybe_check_calibration(header, result, options)
-            want_depth = self.wanted(self._depth, options.publish_depth)
-            want_points = self.wanted(self._points, options.publish_points)
-            if not (want_depth or want_points):
+            self._maybe_check_calibration(frame.stamp_ns, result, options)
+            wanted = self._wanted(GEOMETRY_OUTPUTS, options)
+            if not wanted:
                 return {**result.timings_ms, **stages}
-            self._geometry.submit((header, result, stages, options, want_depth, want_points))
+            self._geometry.submit((frame, result, stages, settings.output, wanted))
         return None
 
     def frames_at_once(self, settings: Settings) -> int:
         return settings.options.matching_threads
 
-    def _geometry_stage(self, job: tuple[Any, StereoResult, dict[str, float], NodeOptions, bool, bool]) -> None:
+    def _geometry_stage(
+        self, job: tuple[StereoFrame, StereoResult, dict[str, float], OutputOptions, frozenset[str]]
+    ) -> None:
         """Second stage: depth and points2 of a published disparity, then the frame is done."""
-        header, result, stages, options, want_depth, want_points = job
+        frame, result, stages, output, wanted = job
 
         def work() -> None:
-            assert self.pipeline is not None and result.camera is not None
-            self.pipeline.add_geometry(result, want_points=False)  # the points go straight into the cloud
-            assert result.depth is not None
-            if want_depth:
-                start = time.perf_counter()
-                self._depth.publish(array_to_image(RCLPY_TYPES, header, result.depth, "32FC1"))
-                timed(stages, "publish_depth", start)
-            if want_points:
-                start = time.perf_counter()
-                color = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-                rays = self.pipeline.rays_for(result.camera)
-                cloud = cloud_message(header, result.depth, rays, color, options, self._cloud_buffer)
-                timed(stages, "points", start)
-                start = time.perf_counter()
-                self._points.publish(cloud)
-                timed(stages, "publish_points", start)
-            self.finish_frame(stamp_to_ns(header.stamp), {**result.timings_ms, **stages})
+            assert self.pipeline is not None
+            start = time.perf_counter()
+            geometry = result_geometry(self.pipeline, result)
+            messages = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, wanted, self._cloud_buffer)
+            timed(stages, "points", start)
+            start = time.perf_counter()
+            self._publish(messages)
+            timed(stages, "publish_geometry", start)
+            self.finish_frame(frame.stamp_ns, {**result.timings_ms, **stages})
 
         self.guarded(work)
 
-    def _maybe_check_calibration(self, header: Any, result: StereoResult, options: NodeOptions) -> None:
+    def _maybe_check_calibration(self, stamp_ns: int, result: StereoResult, options: NodeOptions) -> None:
         self._frames += 1
         if not options.calibration_check or self._frames % options.calibration_check_every_n_frames:
             return
         if not self._check_idle.is_set():
             return  # the previous check is still running: skip this one rather than queue
         self._check_idle.clear()
-        stamp_ns = stamp_to_ns(header.stamp)
         # copies: the check outlives this frame, whose buffers the next frame may reuse
         self._checker.submit(self._check_calibration, stamp_ns, result.left_rect.copy(), result.right_rect.copy())
 
@@ -144,18 +157,13 @@ class StereoNode(StereoIONode):
         self._geometry.stop()
         self._checker.shutdown(wait=True, cancel_futures=True)
 
-    def _publish_images(self, header: Any, result: StereoResult, settings: Settings, options: NodeOptions) -> None:
-        """What the first stage publishes: rectified image, disparity, confidence."""
-        assert result.camera is not None and settings.stereo is not None
-        if self.wanted(self._rect, options.publish_rectified):
-            self._rect.publish(array_to_image(RCLPY_TYPES, header, result.left_rect))
-        if result.left_rect_color is not None and self.wanted(self._rect_color, options.publish_rectified):
-            self._rect_color.publish(array_to_image(RCLPY_TYPES, header, result.left_rect_color))
-        if self.wanted(self._disparity, options.publish_disparity):
-            disparity = disparity_message(RCLPY_TYPES, header, result.disparity, result.camera, settings.stereo)
-            self._disparity.publish(disparity)
-        if result.confidence is not None and self.wanted(self._confidence, options.publish_confidence):
-            self._confidence.publish(array_to_image(RCLPY_TYPES, header, result.confidence, "32FC1"))
+    def _wanted(self, names: tuple[str, ...], options: NodeOptions) -> frozenset[str]:
+        """The outputs switched on (publish_*) that someone listens to: only those are built."""
+        return frozenset(n for n in names if self.wanted(self._output_publishers[n], getattr(options, SWITCHES[n])))
+
+    def _publish(self, messages: dict[str, Any]) -> None:
+        for name, message in messages.items():
+            self._output_publishers[name].publish(message)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,8 +1,9 @@
 """The nodes' ROS parameters: declared from the dataclasses, validated as a whole, applied atomically.
 
-Processing parameters come from `StereoParams` (core); parameters that only make sense on a live node
-(sync, QoS, outputs, point cloud layout) live in `NodeOptions` below. Both carry description and range
-in their field metadata, so the descriptors shown by `ros2 param describe` and the checks agree.
+Processing parameters come from `StereoParams` (core), the way outputs are built from `OutputOptions`
+(frames.py, shared with `stereo-depth process`), parameters that only make sense on a live node (sync,
+QoS, which outputs) from `NodeOptions` (settings.py). All carry description and range in their field
+metadata, so the descriptors shown by `ros2 param describe` and the checks agree.
 
 Start-up order makes `-p profile:=X` work as documented: `profile` is read first, every processing
 parameter is then declared with X's value as its default, and rclpy applies explicit `-p` /
@@ -14,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -24,118 +24,21 @@ from rclpy.parameter import Parameter
 from stereo_depth.core.matching import MATCHERS
 from stereo_depth.core.params import COMPAT_ALIASES, PROFILES, StereoParams, translate_aliases
 from stereo_depth.errors import ParameterError
-from stereo_depth.messages import DEFAULT_MAX_PIXELS
+from stereo_depth.frames import OutputOptions
+from stereo_depth.settings import (
+    CLOUD_OPTIONS,
+    INPUT_OPTIONS,
+    NodeOptions,
+    Settings,
+    unknown_parameters_line,
+)
 
-RELIABILITY_CHOICES = ("auto", "reliable", "best_effort")
-INTERPOLATIONS = {0: "nearest", 1: "linear", 2: "cubic", 3: "area", 4: "lanczos4"}
+__all__ = ["CLOUD_OPTIONS", "INPUT_OPTIONS", "NodeOptions", "NodeParameters", "Settings", "render_config_yaml"]
 
-
-def _spec(description: str, lo: float | None = None, hi: float | None = None, step: float = 0) -> dict[str, Any]:
-    return {"description": description, "min": lo, "max": hi, "step": step}
-
-
-@dataclass(frozen=True)
-class NodeOptions:
-    """Node-only parameters; each node declares the subset it uses (see `*_OPTIONS`)."""
-
-    queue_size: int = field(
-        default=5, metadata=_spec("Messages kept per input while waiting for the rest of a set", 1, 100, 1)
-    )
-    approximate_sync: bool = field(
-        default=False,
-        metadata=_spec("Pair inputs whose stamps differ by up to approximate_sync_tolerance_seconds"),
-    )
-    approximate_sync_tolerance_seconds: float = field(
-        default=0.0,
-        metadata=_spec("Largest stamp difference inside one approximate set, s (0 = no limit)", 0.0, 10.0),
-    )
-    use_system_default_qos: bool = field(
-        default=False,
-        metadata=_spec("stereo_image_proc compatibility: true subscribes reliable when input_reliability is auto"),
-    )
-    input_reliability: str = field(
-        default="auto",
-        metadata=_spec("Subscription reliability: auto (follow the publishers, as rosbag2), reliable, best_effort"),
-    )
-    use_color: bool = field(default=True, metadata=_spec("Add PCL-style packed rgb to points2"))
-    avoid_point_cloud_padding: bool = field(
-        default=False, metadata=_spec("Pack points2 tightly (16-byte points) instead of stereo_image_proc's 32")
-    )
-    publish_rectified: bool = field(default=True, metadata=_spec("Publish left/image_rect(_color)"))
-    publish_disparity: bool = field(default=True, metadata=_spec("Publish disparity (stereo_msgs/DisparityImage)"))
-    publish_depth: bool = field(default=True, metadata=_spec("Publish depth (32FC1, metres, NaN invalid)"))
-    publish_points: bool = field(default=True, metadata=_spec("Publish points2 (sensor_msgs/PointCloud2)"))
-    publish_confidence: bool = field(
-        default=True, metadata=_spec("Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
-    )
-    calibration_check: bool = field(
-        default=True,
-        metadata=_spec("Check now and then that rectified rows still agree (report in diagnostics)"),
-    )
-    calibration_check_every_n_frames: int = field(
-        default=30, metadata=_spec("Run the calibration check on one frame in this many", 1, 100000, 1)
-    )
-    max_waiting_frames: int = field(
-        default=1,
-        metadata=_spec(
-            "Complete input sets kept while one is processed; one more drops the oldest (counted in "
-            "diagnostics). 1: always the newest, lowest latency; more: no frame lost to a busy machine's hiccups",
-            1,
-            100,
-            1,
-        ),
-    )
-    matching_threads: int = field(
-        default=1,
-        metadata=_spec(
-            "Frames matched at once, outputs kept in input order. 2 raises the rate of a matcher that leaves "
-            "cores idle (census_sgm: 1.3-1.4x on 2 cores, bench/parallel_matching.py) at the cost of latency",
-            1,
-            4,
-            1,
-        ),
-    )
-    max_image_pixels: int = field(
-        default=DEFAULT_MAX_PIXELS,
-        metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
-    )
-    interpolation: int = field(
-        default=1,
-        metadata=_spec("Rectification interpolation: 0 nearest, 1 linear, 2 cubic, 3 area, 4 lanczos4", 0, 4, 1),
-    )
-
-    def validate(self) -> NodeOptions:
-        if self.input_reliability not in RELIABILITY_CHOICES:
-            msg = f"input_reliability '{self.input_reliability}' must be one of {', '.join(RELIABILITY_CHOICES)}"
-            raise ParameterError(msg)
-        return self
-
-    @property
-    def tolerance_ns(self) -> int:
-        """The synchronizer's tolerance; 0 s means "no limit" as in stereo_image_proc (message_filters)."""
-        if self.approximate_sync_tolerance_seconds <= 0:
-            return 1 << 62
-        return round(self.approximate_sync_tolerance_seconds * 1e9)
-
-    @property
-    def reliability(self) -> str:
-        """The effective subscription policy: input_reliability, with use_system_default_qos honoured."""
-        if self.input_reliability == "auto" and self.use_system_default_qos:
-            return "reliable"
-        return self.input_reliability
-
-
-SYNC_OPTIONS = ("queue_size", "approximate_sync", "approximate_sync_tolerance_seconds")
-INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_waiting_frames", "max_image_pixels")
-CLOUD_OPTIONS = ("use_color", "avoid_point_cloud_padding")
-
-
-@dataclass(frozen=True)
-class Settings:
-    """One consistent set of values: what a frame is processed with (swapped as a whole)."""
-
-    stereo: StereoParams | None
-    options: NodeOptions
+_OPTION_CLASS: dict[str, type[NodeOptions] | type[OutputOptions]] = {
+    f.name: cls for cls in (NodeOptions, OutputOptions) for f in dataclasses.fields(cls)
+}
+_FIELDS = {f.name: f for cls in (NodeOptions, OutputOptions) for f in dataclasses.fields(cls)}
 
 
 def _describe(f: dataclasses.Field[Any], *, read_only: bool = False) -> ParameterDescriptor:
@@ -183,10 +86,11 @@ class NodeParameters:
         self._on_change = on_change
         if with_stereo:
             self._declare_stereo()
-        options = {f.name: f for f in dataclasses.fields(NodeOptions)}
         for name in self._option_names:
-            node.declare_parameter(name, getattr(NodeOptions(), name), _describe(options[name]))
+            cls = _OPTION_CLASS[name]
+            node.declare_parameter(name, getattr(cls(), name), _describe(_FIELDS[name]))
         self.settings = self._build({})  # a bad start-up value raises ParameterError here
+        self._warn_unknown()
         node.add_pre_set_parameters_callback(self._expand_aliases)
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
@@ -229,8 +133,20 @@ class NodeParameters:
         stereo = None
         if self._stereo_names:
             stereo = StereoParams(**{n: values[n] for n in self._stereo_names}).validate()
-        options = NodeOptions(**{n: values[n] for n in self._option_names}).validate()
-        return Settings(stereo, options)
+        options = NodeOptions(**self._given(values, NodeOptions)).validate()
+        output = OutputOptions(**self._given(values, OutputOptions)).validate()
+        return Settings(stereo, options, output)
+
+    def _given(self, values: dict[str, Any], cls: type[NodeOptions] | type[OutputOptions]) -> dict[str, Any]:
+        """The values of this node's options that are fields of `cls` (the others keep their defaults)."""
+        return {n: values[n] for n in self._option_names if _OPTION_CLASS[n] is cls}
+
+    def _warn_unknown(self) -> None:
+        """One start-up warning for -p / --params-file names no stereo_depth node knows (a typo is
+        otherwise ignored without a word); rclpy keeps the given values in `_parameter_overrides`."""
+        line = unknown_parameters_line(getattr(self._node, "_parameter_overrides", {}))
+        if line is not None:
+            self._node.get_logger().warning(line)
 
     def _expand_aliases(self, parameters: list[Parameter]) -> list[Parameter]:
         """`ros2 param set stereo_algorithm 1` also sets matcher, in the same atomic change."""
@@ -281,7 +197,8 @@ def render_config_yaml() -> str:
             "processing (stereo_node, disparity_node); stereo_image_proc's names where the meaning is the same",
             StereoParams,
         ),
-        ("node: inputs, sync, QoS, outputs (each node declares the ones it uses)", NodeOptions),
+        ("outputs (the nodes and `stereo-depth process --set`)", OutputOptions),
+        ("node: inputs, sync, QoS, which outputs (each node declares the ones it uses)", NodeOptions),
     )
     for title, cls in sections:
         lines.append(f"    # --- {title}\n")

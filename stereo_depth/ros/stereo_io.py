@@ -30,18 +30,11 @@ from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
-from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
-from stereo_depth.messages import (
-    CloudBuffer,
-    camera_info_from_msg,
-    depth_to_cloud,
-    image_to_pipeline,
-    make_header,
-    stamp_to_ns,
-)
+from stereo_depth.errors import StereoDepthError
+from stereo_depth.frames import StereoFrame, decode_frame, decode_image, frame_camera, match_frame, named
+from stereo_depth.messages import make_header, stamp_to_ns
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
 from stereo_depth.ros.problems import ProblemLog
@@ -193,41 +186,45 @@ class StereoIONode(Node):
 
     def read_input(self, index: int, convert: Callable[[Any], T], msg: Any) -> T:
         """`convert(msg)`, with the input's topic named in any error it raises."""
-        try:
-            return convert(msg)
-        except StereoDepthError as exc:
-            raise type(exc)(f"{self.topics[index]}: {exc}") from exc
+        return named(self.topics[index], convert, msg)
 
-    def read_image(self, index: int, msg: Any, options: NodeOptions) -> Any:
-        return self.read_input(index, partial(image_to_pipeline, max_pixels=options.max_image_pixels), msg)
+    def read_image(self, index: int, msg: Any, settings: Settings) -> Any:
+        return named(self.topics[index], decode_image, msg, settings.output.max_image_pixels)
 
     def stereo_camera(self, left_index: int, left_msg: Any, right_index: int, right_msg: Any) -> StereoCamera:
         """The cached StereoCamera; calibration errors name both camera_info topics."""
         assert self.pipeline is not None
-        left = self.read_input(left_index, camera_info_from_msg, left_msg)
-        right = self.read_input(right_index, camera_info_from_msg, right_msg)
-        topics = f"left = {self.topics[left_index]}, right = {self.topics[right_index]}"
         loaded = self.pipeline.calibrations_built
-        try:
-            camera = self.pipeline.camera_for(left, right)
-        except StereoDepthError as exc:
-            raise type(exc)(f"{exc} ({topics})") from exc
-        if self.pipeline.calibrations_built != loaded:
-            self.diagnostics.calibrations_loaded(self.pipeline.calibrations_built)
-            self.problems.info(
-                f"calibration {'changed' if loaded else 'received'} ({topics}): {camera.width}x{camera.height}, "
-                f"fx {camera.fx:.1f} px, baseline {camera.baseline:.4f} m; rectification maps rebuilt",
-                kind=f"calibration {hash(camera.key())}",
-            )
+        names = (self.topics[left_index], self.topics[right_index])
+        camera = frame_camera(self.pipeline, left_msg, right_msg, names)
+        self._note_calibration(loaded, camera, names)
         return camera
 
-    def match_pair(self, left: Any, right: Any, camera: StereoCamera, **options: Any) -> StereoResult:
-        """`pipeline.match`, with both image topics named in any error it raises."""
+    def read_frame(self, messages: tuple[Any, ...], settings: Settings, *, rectified: bool) -> StereoFrame:
+        """`decode_frame` of (left image, left info, right image, right info), errors naming the topics."""
         assert self.pipeline is not None
-        try:
-            return self.pipeline.match(left, right, camera, **options)
-        except StereoDepthError as exc:
-            raise type(exc)(f"{self.topics[0]} and {self.topics[2]}: {exc}") from exc
+        loaded = self.pipeline.calibrations_built
+        frame = decode_frame(messages, self.pipeline, settings.output, rectified=rectified, names=self.topics)
+        self._note_calibration(loaded, frame.camera, (self.topics[1], self.topics[3]))
+        return frame
+
+    def match(self, frame: StereoFrame) -> StereoResult:
+        """`match_frame`, with both image topics named in any error it raises."""
+        assert self.pipeline is not None
+        return match_frame(self.pipeline, frame, self.topics)
+
+    def _note_calibration(self, loaded: int, camera: StereoCamera, names: tuple[str, str]) -> None:
+        """Diagnostics and one log line when the pipeline built a new calibration for this frame."""
+        assert self.pipeline is not None
+        if self.pipeline.calibrations_built == loaded:
+            return
+        self.diagnostics.calibrations_loaded(self.pipeline.calibrations_built)
+        self.problems.info(
+            f"calibration {'changed' if loaded else 'received'} (left = {names[0]}, right = {names[1]}): "
+            f"{camera.width}x{camera.height}, fx {camera.fx:.1f} px, baseline {camera.baseline:.4f} m; "
+            "rectification maps rebuilt",
+            kind=f"calibration {hash(camera.key())}",
+        )
 
     def finish_frame(self, stamp_ns: int, stage_ms: dict[str, float]) -> None:
         """A frame's outputs are all published: its stage times and latency go to diagnostics."""
@@ -246,28 +243,6 @@ class StereoIONode(Node):
                 return  # shutting down: publishers are gone
             self.diagnostics.error(f"internal error: {exc!r}")
             self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
-
-    def read_stereo_pair(self, messages: tuple[Any, ...], options: NodeOptions) -> tuple[Any, Any, StereoCamera]:
-        """(left, right, camera) from (left image, left info, right image, right info), sizes checked
-        here so that the error names the topics, not "left" and "right"."""
-        left_msg, left_info, right_msg, right_info = messages
-        left = self.read_image(0, left_msg, options)
-        right = self.read_image(2, right_msg, options)
-        camera = self.stereo_camera(1, left_info, 3, right_info)
-        (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
-        if (lh, lw) != (rh, rw):
-            msg = (
-                f"{self.topics[0]} is {lw}x{lh} but {self.topics[2]} is {rw}x{rh}; both cameras must "
-                "stream one resolution (check each driver's mode, binning and ROI)"
-            )
-            raise ImageError(msg)
-        if (lw, lh) != (camera.width, camera.height):
-            msg = (
-                f"{self.topics[0]} and {self.topics[2]} are {lw}x{lh} but {self.topics[1]} and {self.topics[3]} "
-                f"say {camera.width}x{camera.height}; publish the calibration of this camera mode"
-            )
-            raise CalibrationError(msg)
-        return left, right, camera
 
     # ------------------------------------------------------------ internals
 
@@ -370,18 +345,6 @@ class StereoIONode(Node):
     def destroy_node(self) -> None:
         self.stop_workers()
         super().destroy_node()
-
-
-def cloud_message(header: Any, depth: Any, rays: Rays, image: Any, options: NodeOptions, buffer: CloudBuffer) -> Any:
-    """Organized PointCloud2 of a depth image; colour from the rectified left image (grey when the
-    camera is mono). The points are computed straight into the message.
-
-    `buffer`: the publisher's own CloudBuffer; publish the message before the next call reuses it.
-    """
-    color = image if options.use_color else None
-    return depth_to_cloud(
-        RCLPY_TYPES, header, depth, rays, color, avoid_padding=options.avoid_point_cloud_padding, buffer=buffer
-    )
 
 
 def timed(stages: dict[str, float], name: str, start: float) -> None:
