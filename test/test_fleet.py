@@ -154,9 +154,13 @@ def test_bags_on_a_ray_cluster_equal_one_bag_runs_and_a_damaged_one_is_reported(
     assert {b["status"] for b in json.loads(report.read_text())["bags"]} == {"skipped", "failed"}
 
     # Other parameters are not "finished": the run refuses to replace them unless told to.
-    code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), "--set", "P1=100")
+    other = ("--set", "correlation_window_size=5")
+    code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), *other)
     assert code == 1 and len(errors) == 1 and "made with other parameters" in errors[0] and "--overwrite" in errors[0]
     assert messages(out / "artl") == one_bag_outputs["artl"]
+    code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), *other, "--overwrite")
+    assert code == 0, errors
+    assert messages(out / "artl") != one_bag_outputs["artl"] and hidden_leftovers(out) == []
 
 
 @pytest.fixture(scope="module")
