@@ -61,9 +61,9 @@ class TimeWindow:
     """The sets one shard of a long bag owns: set stamps in [start_ns, stop_ns) (None: unbounded).
 
     Reading starts `lead_ns` of recording time before `start_ns` so the synchronizer holds what one
-    pass over the whole bag would hold at the border, and goes on past `stop_ns` until the first set
-    of the next window is paired: its stamp (`ReadStats.handoff_ns`) must be the next shard's first
-    (`ReadStats.first_ns`), which is how a border is checked to pair as one pass does.
+    pass over the whole bag would hold at the border, and goes on past `stop_ns` (at most `lead_ns`)
+    until the first set of the next window is paired: its stamp (`ReadStats.handoff_ns`) must be the
+    next shard's first (`ReadStats.first_ns`), which is how a border is checked to pair as one pass does.
     """
 
     start_ns: int | None = None
