@@ -82,12 +82,15 @@ def free_port() -> int:
 
 
 @pytest.fixture(scope="module", autouse=True)
-def ray_settings() -> Iterator[None]:
+def worker_settings() -> Iterator[None]:
     """Ray on loopback for tests: no token file written to ~/.ray (which a later head would then
-    demand), no usage statistics."""
+    demand), no usage statistics. Workers (Ray's and the local pool's inherit this environment) match
+    on one thread each, so two of them leave the test files running beside this one some CPU."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("RAY_AUTH_MODE", "disabled")
         patch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+        patch.setenv("OPENCV_FOR_THREADS_NUM", "1")
+        patch.setenv("NUMBA_NUM_THREADS", "1")
         yield
 
 
@@ -226,7 +229,7 @@ def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(tmp_path: Path,
     out = tmp_path / "out"
     command = [sys.executable, "-m", "stereo_depth.cli", "process", str(long_bag), "--out-dir", str(out)]
     command += ["--jobs", "2", "--shard-seconds", "0.5", "--profile", "quality"]
-    run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)  # environment: worker_settings
     assert run.stderr is not None
     deadline = time.monotonic() + 60
     while not any(p.name.startswith(".0") for p in (out / ".long.shards").glob("*")):  # a shard is being written
