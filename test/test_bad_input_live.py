@@ -26,6 +26,7 @@ from stereo_msgs.msg import DisparityImage
 from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     array_to_image,
     camera_info_from_msg,
@@ -36,7 +37,6 @@ from stereo_depth.messages import (
 )
 from stereo_depth.ros import problems
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.scenes import load_scene
 
 from conftest import SCENES
 

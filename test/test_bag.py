@@ -29,8 +29,8 @@ from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import BagError, ParameterError
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import camera_info_from_msg, cloud_to_arrays, disparity_from_msg, image_to_array, stamp_to_ns
-from stereo_depth.scenes import load_scene
 
 from conftest import DATA, EUROC, SCENES, read_image
 

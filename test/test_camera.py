@@ -11,8 +11,8 @@ import pytest
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import CalibrationError
-from stereo_depth.euroc import stereo_camera_infos
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import load_scene
 
 from conftest import EUROC, SCENES, read_image
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from stereo_depth.bag.reader import open_reader
+from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
 

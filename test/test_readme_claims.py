@@ -39,7 +39,8 @@ from stereo_depth.bag.process import process_bag
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     array_to_image,
     camera_info_to_msg,
@@ -50,7 +51,6 @@ from stereo_depth.messages import (
     stamp_to_ns,
 )
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.scenes import load_scene
 
 from conftest import EUROC, SCENES, read_image
 

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow
+from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
@@ -42,6 +42,7 @@ from stereo_depth.messages import CloudBuffer, MessageTypes
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
+    topics: TopicChoice | None = None  # --left/--right/--camera-info (its namespace wins over the one above)
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
@@ -186,7 +187,9 @@ def process_bag(
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
-        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync, window=options.window) as reader,
+        StereoBagReader(
+            in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics, window=options.window
+        ) as reader,
         BagWriter(
             out_bag,
             storage=options.storage,
@@ -200,7 +203,7 @@ def process_bag(
         cloud_buffer = CloudBuffer()  # the writer serializes each message before the next frame reuses it
         for frame in reader.frames():
             try:
-                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.names)
+                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
                 messages, geometry = frame_outputs(types, pipeline, decoded, result, options, cloud_buffer)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1

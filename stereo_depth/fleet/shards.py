@@ -11,7 +11,8 @@ import itertools
 import math
 from pathlib import Path
 
-from stereo_depth.bag.reader import TimeWindow, open_reader
+from stereo_depth.bag.reader import TimeWindow
+from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.errors import BagError
 from stereo_depth.fleet.tasks import TaskResult
@@ -22,7 +23,7 @@ def windows(bag: Path, shard_seconds: float) -> list[TimeWindow]:
     outside the recorded span still belongs to exactly one window."""
     reader = open_reader(bag)
     try:
-        start, end = reader.start_time, reader.end_time
+        start, end = reader.time_span
     finally:
         reader.close()
     step = round(shard_seconds * 1e9)
@@ -52,7 +53,7 @@ def merge(
         for part in parts:
             reader = open_reader(part)
             try:
-                for connection, timestamp, raw in reader.messages(connections=reader.connections):
+                for connection, timestamp, raw in reader.messages(reader.connections):
                     writer.write_raw(connection.topic, connection.msgtype, raw, timestamp)
             finally:
                 reader.close()

@@ -61,12 +61,18 @@ def record(params: StereoParams, options: ProcessOptions) -> str:
         "params": dataclasses.asdict(params),
         "sync": dataclasses.asdict(options.sync),
         "namespace": options.namespace,
+        "topics": dataclasses.asdict(options.topics) if options.topics is not None else None,
         "outputs": list(options.outputs),
         "output": dataclasses.asdict(options.output),
         "storage": options.storage,
         "compress": options.compress,
     }
-    return json.dumps(made_with, sort_keys=True)
+    return json.dumps(made_with, sort_keys=True, default=_json_value)
+
+
+def _json_value(value: object) -> object:
+    """Arrays (a calibration file's K, D, R, P) as lists; anything else JSON lacks as its text."""
+    return value.tolist() if isinstance(value, np.ndarray) else str(value)
 
 
 @functools.cache
