@@ -12,13 +12,15 @@ import multiprocessing
 import os
 import signal
 from collections.abc import Generator
-from typing import Any, Protocol
+from multiprocessing.connection import Connection, wait
+from multiprocessing.context import SpawnContext
+from typing import Any, Protocol, cast
 
 from stereo_depth.core.params import StereoParams
 from stereo_depth.errors import StereoDepthError
 from stereo_depth.fleet.tasks import Task, TaskResult, matcher_cores, run_task, warm_up
 
-CANCEL_GRACE_SECONDS = 10.0  # how long cancelled Ray tasks get to remove their partial output
+CANCEL_GRACE_SECONDS = 10.0  # how long cancelled tasks get to remove their partial output
 
 
 Results = Generator[TaskResult, None, None]  # closing it cancels what has not finished
@@ -36,31 +38,70 @@ class InProcess:
             yield run_task(task)
 
 
-_running = False  # in a pool worker: whether a task is under way
+_running = False  # in a worker process: whether a task is under way
 
 
 def _stop_worker(signum: int, frame: object) -> None:
-    """SIGTERM from Pool.terminate: unwind a running task (its output is deleted), else just exit."""
+    """SIGTERM from the driver: unwind a running task (its output is deleted), else just exit."""
     if _running:
         raise KeyboardInterrupt
     os._exit(0)
 
 
-def _start_worker(params: StereoParams) -> None:
+def _serve(connection: Connection, params: StereoParams) -> None:
+    """A worker process: tasks in, results out over its own pipe, until the driver closes it.
+
+    One pipe per worker and no lock shared between processes, so stopping a worker at any moment
+    cannot leave the driver waiting (multiprocessing.Pool.terminate can hang on a lock an idle
+    worker held)."""
+    global _running  # one flag per worker process, read by its signal handler
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the driver alone handles Ctrl-C and stops the workers
     signal.signal(signal.SIGTERM, _stop_worker)
     warm_up(params)
-
-
-def _pool_task(task: Task) -> TaskResult:
-    global _running  # one flag per worker process, read by its signal handler
-    _running = True
-    try:
-        return run_task(task)
-    except KeyboardInterrupt:
-        os._exit(130)  # the bag's temporary output is gone by now; leave nothing half-done behind
-    finally:
+    while True:
+        try:
+            task = connection.recv()
+        except EOFError:
+            return
+        _running = True
+        try:
+            result = run_task(task)
+        except KeyboardInterrupt:
+            os._exit(130)  # the bag's temporary output is gone by now
         _running = False
+        connection.send(result)
+
+
+class _Worker:
+    def __init__(self, context: SpawnContext, params: StereoParams) -> None:
+        self.connection, there = context.Pipe()
+        self.process = context.Process(target=_serve, args=(there, params), daemon=True)
+        self.process.start()
+        there.close()
+        self.task: Task | None = None
+
+    def submit(self, task: Task) -> None:
+        self.task = task
+        self.connection.send(task)
+
+    def result(self) -> TaskResult:
+        """The finished task's result; a dead worker (killed, out of memory) fails only its own task."""
+        assert self.task is not None
+        try:
+            return cast("TaskResult", self.connection.recv())
+        except EOFError:
+            self.process.join()
+            error = f"the worker process died (exit code {self.process.exitcode}) while processing this bag"
+            return TaskResult(self.task.bag, self.task.shard, error=error)
+
+    def stop(self, grace_seconds: float) -> None:
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(grace_seconds)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        self.connection.close()
 
 
 class LocalPool:
@@ -73,17 +114,29 @@ class LocalPool:
         if not tasks:
             return
         context = multiprocessing.get_context("spawn")
-        workers = min(self.jobs, len(tasks))
-        pool = context.Pool(workers, initializer=_start_worker, initargs=(tasks[0].params,))
+        params, waiting = tasks[0].params, list(reversed(tasks))
+        workers = [_Worker(context, params) for _ in range(min(self.jobs, len(tasks)))]
         try:
-            yield from pool.imap_unordered(_pool_task, tasks, chunksize=1)
-        except BaseException:
-            pool.terminate()
-            raise
-        else:
-            pool.close()
+            for worker in workers:
+                worker.submit(waiting.pop())
+            busy = {worker.connection: worker for worker in workers}
+            while busy:
+                for ready in wait(list(busy)):
+                    worker = next(w for c, w in busy.items() if c is ready)
+                    del busy[worker.connection]
+                    result = worker.result()
+                    if waiting:
+                        if not worker.process.is_alive():  # it died: a fresh one takes the next task
+                            workers.remove(worker)
+                            worker.stop(0)
+                            worker = _Worker(context, params)
+                            workers.append(worker)
+                        worker.submit(waiting.pop())
+                        busy[worker.connection] = worker
+                    yield result
         finally:
-            pool.join()
+            for worker in workers:  # Ctrl-C: running tasks unwind and delete their output first
+                worker.stop(CANCEL_GRACE_SECONDS)
 
 
 def import_ray() -> Any:
