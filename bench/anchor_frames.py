@@ -31,7 +31,8 @@ BOXES = (
 def texture(rng: np.random.Generator, height: int, width: int, mean: float) -> np.ndarray:
     """Band-limited random texture (noise smoothed by a 3x3 box), uint8-range float."""
     noise = rng.integers(0, 256, size=(height + 2, width + 2)).astype(np.float32)
-    smooth = sum(noise[dy : dy + height, dx : dx + width] for dy in range(3) for dx in range(3)) / 9.0
+    window_sum = sum(noise[dy : dy + height, dx : dx + width] for dy in range(3) for dx in range(3))
+    smooth = np.asarray(window_sum, dtype=np.float32) / 9.0
     smooth = (smooth - smooth.mean()) / (smooth.std() + 1e-6)
     return np.clip(mean + 45.0 * smooth, 0, 255).astype(np.float32)
 
@@ -87,7 +88,7 @@ def frames(
             x = layer.x0 + round(layer.vx * i)
             paste(image, layer.texture, x - (layer.disparity if right else 0), layer.y0)
         image += rng.normal(0.0, 2.0, size=image.shape).astype(np.float32)  # sensor noise
-        return np.clip(image, 0, 255).astype(np.uint8)
+        return np.asarray(np.clip(image, 0, 255), dtype=np.uint8)
 
     for i in range(count):
         left = render(i, False)

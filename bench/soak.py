@@ -14,7 +14,7 @@ bounded and the excess shows as `node dropped`, not as a growing queue.
     .venv/bin/python bench/soak.py --seconds 60 --rate 100 --size 320x240 -p profile:=fast
 
 Uses ROS_DOMAIN_ID from the environment (default 15) and LOCALHOST discovery. test/test_long_run.py
-drives the same `Soak` for 2,000 frames.
+drives the same `Soak` for 300 frames.
 """
 
 from __future__ import annotations
@@ -109,6 +109,7 @@ class Soak:
         self.sent: list[int] = []  # stamps, in publish order
         self._received: dict[int, int] = {}  # stamp -> receipt time, ns
         self.node_values: dict[str, str] = {}  # the node's last diagnostics
+        self.reports = 0  # diagnostics reports received
         self._subscriptions = [
             node.create_subscription(DisparityImage, f"{namespace}/disparity", self._on_disparity, qos),
             node.create_subscription(DiagnosticArray, f"{namespace}/diagnostics", self._on_diagnostics, 10),
@@ -123,6 +124,7 @@ class Soak:
         values = {kv.key: kv.value for kv in msg.status[0].values}
         with self._lock:
             self.node_values = values
+            self.reports += 1
 
     def wait_matched(self, timeout_s: float = 60.0) -> None:
         deadline = time.monotonic() + timeout_s
@@ -177,6 +179,12 @@ class Soak:
         with self._lock:
             latencies = [(self._received[s] - s) / 1e6 for s in stamps if s in self._received]
         return Window(len(stamps), len(latencies), latencies)
+
+    def received_stamps(self, sent_range: tuple[int, int]) -> list[int]:
+        """Stamps of the sets in `sent_range` whose disparity came back, in the order they came back."""
+        wanted = set(self.sent[sent_range[0] : sent_range[1]])
+        with self._lock:
+            return [stamp for stamp in self._received if stamp in wanted]
 
     def node_count(self, key: str) -> int:
         with self._lock:

@@ -31,12 +31,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(text: str) -> str:
+    """A reason on one line: messages quoting a parser (YAML marks, numpy) may carry newlines."""
+    return " ".join(text.split())
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.run(args))
     except StereoDepthError as exc:
-        print(f"ERROR: {exc}", file=sys.stderr)
+        print(f"ERROR: {one_line(str(exc))}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("ERROR: interrupted", file=sys.stderr)

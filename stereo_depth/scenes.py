@@ -32,9 +32,9 @@ class Scene:
     def disparity_range(self) -> int:
         """`ndisp` from calib.txt, else the GT maximum plus 15 %, rounded up to a multiple of 16."""
         if "ndisp" in self.calib:
-            wanted = float(self.calib["ndisp"])
+            wanted = calib_number(self.calib, "ndisp", self.name)
         elif "gt_max" in self.calib:
-            wanted = float(self.calib["gt_max"]) * 1.15
+            wanted = calib_number(self.calib, "gt_max", self.name) * 1.15
         elif self.gt is not None and np.isfinite(self.gt).any():
             wanted = float(np.nanmax(self.gt)) * 1.15
         else:
@@ -49,6 +49,12 @@ class Scene:
         except KeyError as exc:
             msg = f"{self.name}: calib.txt has no {exc.args[0]}; the scene has no calibration"
             raise SceneError(msg) from exc
+        except ValueError as exc:
+            msg = (
+                f"{self.name}: calib.txt has a malformed cam0, cam1 or baseline ({exc}); expected e.g. "
+                "cam0=[1038.0 0 322.0; 0 1038.0 243.5; 0 0 1] and baseline=176.252 (mm)"
+            )
+            raise SceneError(msg) from exc
         h, w = self.left.shape[:2]
         p0 = np.hstack([k0, np.zeros((3, 1))])
         p1 = np.hstack([k1, np.array([[-k1[0, 0] * baseline_m], [0.0], [0.0]])])
@@ -58,9 +64,23 @@ class Scene:
         return left, right
 
 
+def calib_number(calib: dict[str, str], key: str, source: str) -> float:
+    """calib.txt's `key` as a number; a SceneError naming the scene when it is not one."""
+    try:
+        return float(calib[key])
+    except ValueError as exc:
+        msg = f"{source}: calib.txt has {key}={calib[key]!r}, not a number"
+        raise SceneError(msg) from exc
+
+
 def parse_matrix(text: str) -> np.ndarray:
+    """A 3x3 matrix written as Middlebury does: `[fx 0 cx; 0 fy cy; 0 0 1]`; ValueError otherwise."""
     rows = [r.split() for r in text.strip().strip("[]").split(";")]
-    return np.array(rows, dtype=np.float64)
+    matrix = np.array(rows, dtype=np.float64)
+    if matrix.shape != (3, 3):
+        msg = f"'{text}' is not a 3x3 matrix"
+        raise ValueError(msg)
+    return matrix
 
 
 def read_calib(path: Path) -> dict[str, str]:
@@ -122,7 +142,7 @@ def read_ground_truth(folder: Path, calib: dict[str, str]) -> np.ndarray | None:
     raw = _read_image(path)
     if raw.ndim == 3:
         raw = raw[:, :, 0]
-    gt = raw.astype(np.float32) / float(calib.get("gt_scale", 1))
+    gt = raw.astype(np.float32) / (calib_number(calib, "gt_scale", str(folder)) if "gt_scale" in calib else 1.0)
     gt[raw == 0] = np.nan
     return gt
 

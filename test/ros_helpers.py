@@ -26,7 +26,7 @@ from stereo_depth.messages import stamp_to_ns
 TIMEOUT_S = 20.0
 
 
-def wait_until(condition: Callable[[], Any], what: str, timeout: float = TIMEOUT_S) -> Any:
+def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOUT_S) -> Any:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = condition()
@@ -163,10 +163,18 @@ class RosHarness:
         rclpy.try_shutdown()
 
 
-def stop_all(processes: Iterable[NodeProcess], sig: signal.Signals = signal.SIGINT) -> dict[str, tuple[int, str]]:
-    """Signal all first, then wait: the nodes shut down in parallel."""
+def stop_all(
+    processes: Iterable[NodeProcess], sig: signal.Signals = signal.SIGINT, *, expect_clean: bool = True
+) -> dict[str, tuple[int, str]]:
+    """Signal all first, then wait: the nodes shut down in parallel. With `expect_clean`, every node must
+    have ended with exit code 0 and no traceback, whatever the test before did to it."""
     processes = list(processes)
     for process in processes:
         if process.process.poll() is None:
             process.process.send_signal(sig)
-    return {p.fqn: p.stop(sig) for p in processes}
+    results = {p.fqn: p.stop(sig) for p in processes}
+    if expect_clean:
+        for fqn, (code, output) in results.items():
+            assert code == 0, f"{fqn}: exit code {code}\n{output}"
+            assert "Traceback" not in output and "terminate called" not in output, f"{fqn}:\n{output}"
+    return results

@@ -156,3 +156,35 @@ def test_unwritable_output_folder(
     code, error = process(capsys, MIDDLEBURY_BAG, out)
     assert code == 1 and reason in error and "folder" in error
     assert not out.exists()
+
+
+def test_malformed_calib_txt_is_one_error_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    scene = tmp_path / "scene"
+    shutil.copytree(SCENES / "tsukuba", scene)
+    calib = (scene / "calib.txt").read_text() if (scene / "calib.txt").exists() else ""
+    (scene / "calib.txt").write_text(calib + "cam0=[1 2; 3]\ncam1=[1 0 0; 0 1 0; 0 0 1]\nbaseline=100\n")
+    out = tmp_path / "bag"
+    code = main(["make-bag", str(scene), str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "calib.txt has a malformed cam0, cam1 or baseline" in err
+    assert nothing_written(out)
+
+
+def test_malformed_ground_truth_index_is_one_error_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    bags = tmp_path / "bags"
+    shutil.copytree(BAGS, bags)
+    (bags / "middlebury_gt" / "index.yaml").write_text("gt_scale: 64\nframes:\n  - {stamp_ns: 1}\n")
+    code = main(["demo", "--bags", str(bags), "--out", str(tmp_path / "out"), "--set", "disparity_range=16"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "not a ground-truth index (KeyError" in err
+
+
+def test_a_parser_message_with_newlines_still_makes_one_error_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    params = tmp_path / "params.yaml"
+    params.write_text("- : [\n")  # PyYAML's message quotes the line with a caret under it
+    code = main(["process", str(MIDDLEBURY_BAG), str(tmp_path / "out"), "--params", str(params)])
+    err = capsys.readouterr().err
+    assert code == 1 and err.startswith("ERROR: ") and err.count("\n") == 1, err
+    assert "cannot read it as YAML" in err

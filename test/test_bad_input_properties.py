@@ -19,12 +19,13 @@ from stereo_depth.core.camera import DISTORTION_MODELS, StereoCamera
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import StereoDepthError
-from stereo_depth.messages import ENCODINGS, camera_info_from_msg, image_to_pipeline, make_header
+from stereo_depth.messages import CAMERA_ENCODINGS, ENCODINGS, camera_info_from_msg, image_to_pipeline, make_header
 
 T = rosbags_types()
 HEADER = make_header(T, 1, "cam")
 MAX_PIXELS = 20_000
-EXAMPLES = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# derandomize: the same examples on every run and machine, so a failure reproduces and CI cannot flake
+EXAMPLES = settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 JUNK_ENCODINGS = ["", "yuv422", "yuv422_yuy2", "nv21", "32FC1", "16SC1", "64FC1", "jpeg", "png", "mono8 ", "MONO8"]
 UINT32_EDGES = [2**16, 2**31 - 1, 2**31, 2**32 - 1]
 
@@ -35,18 +36,22 @@ def uint32(small: int) -> st.SearchStrategy[int]:
 
 
 @st.composite
-def images(draw: st.DrawFn, size: tuple[int, int] | None = None) -> Any:
-    """Any Image, half of them decodable; `size` (height, width) makes it the partner of one that was."""
-    plausible = draw(st.booleans())
+def images(draw: st.DrawFn, size: tuple[int, int] | None = None, plausible_odds: float = 0.5) -> Any:
+    """Any Image, about `plausible_odds` of them plausible (mostly decodable); `size` (height, width)
+    makes it the partner of one that was."""
+    plausible = draw(st.integers(0, 99)) < round(100 * plausible_odds)
+    camera = st.sampled_from(sorted(CAMERA_ENCODINGS))
     known = st.sampled_from(sorted(ENCODINGS))
-    encoding = draw(known if plausible else st.one_of(known, st.sampled_from(JUNK_ENCODINGS), st.text(max_size=6)))
+    encoding = draw(camera if plausible else st.one_of(known, st.sampled_from(JUNK_ENCODINGS), st.text(max_size=6)))
     if size is None:
         height, width = (st.integers(1, 40), st.integers(1, 120)) if plausible else (uint32(40), uint32(120))
         size = (draw(height), draw(width))
     height, width = size
     dtype, channels, _ = ENCODINGS.get(encoding, ("u1", 1, None))
     row = width * channels * np.dtype(dtype).itemsize
-    step = draw(st.integers(row, row + 8) if plausible else st.one_of(st.just(row), uint32(400)))
+    itemsize = np.dtype(dtype).itemsize
+    padding = st.integers(0, 8 // itemsize).map(lambda n: n * itemsize)
+    step = draw(padding.map(lambda pad: row + pad) if plausible else st.one_of(st.just(row), uint32(400)))
     consistent = step * height <= 200_000 and (plausible or draw(st.booleans()))
     size_bytes = step * height if consistent else draw(st.integers(0, 2_000))
     data = draw(st.binary(min_size=size_bytes, max_size=size_bytes))
@@ -145,24 +150,31 @@ def pipelines() -> dict[str, StereoPipeline]:
     }
 
 
-@EXAMPLES
-@given(st.data())
-def test_pipeline_raises_only_our_errors_for_any_decoded_pair(
-    pipelines: dict[str, StereoPipeline], data: st.DataObject
-) -> None:
-    left = only_our_errors(image_to_pipeline, data.draw(images()), max_pixels=MAX_PIXELS)
-    if left is None:
-        return
-    height, width = left.shape[:2]
-    same_size = data.draw(st.sampled_from([True, True, True, False]))
-    right_msg = data.draw(images((height, width) if same_size else None))
-    right = only_our_errors(image_to_pipeline, right_msg, max_pixels=MAX_PIXELS)
-    if right is None:
-        return
-    infos = [only_our_errors(camera_info_from_msg, data.draw(camera_infos(width, height, tx))) for tx in (0.0, 0.1)]
-    camera = None if None in infos else only_our_errors(StereoCamera, *infos)
-    pipeline = pipelines[data.draw(st.sampled_from(sorted(pipelines)))]
-    rectified = camera is None or data.draw(st.booleans())
-    result = only_our_errors(pipeline.process, left, right, camera, rectified=rectified)
-    if result is not None:
-        assert result.disparity.shape == (height, width) and result.disparity.dtype == np.float32
+def test_pipeline_raises_only_our_errors_for_any_decoded_pair(pipelines: dict[str, StereoPipeline]) -> None:
+    """Mostly plausible pairs, so that most examples get as far as `StereoPipeline.process` (counted)."""
+    reached = {"examples": 0, "pipeline": 0}
+
+    @EXAMPLES
+    @given(st.data())
+    def check(data: st.DataObject) -> None:
+        reached["examples"] += 1
+        left = only_our_errors(image_to_pipeline, data.draw(images(plausible_odds=0.95)), max_pixels=MAX_PIXELS)
+        if left is None:
+            return
+        height, width = left.shape[:2]
+        same_size = data.draw(st.sampled_from([True, True, True, False]))
+        right_msg = data.draw(images((height, width) if same_size else None, plausible_odds=0.95))
+        right = only_our_errors(image_to_pipeline, right_msg, max_pixels=MAX_PIXELS)
+        if right is None:
+            return
+        infos = [only_our_errors(camera_info_from_msg, data.draw(camera_infos(width, height, tx))) for tx in (0.0, 0.1)]
+        camera = None if None in infos else only_our_errors(StereoCamera, *infos)
+        pipeline = pipelines[data.draw(st.sampled_from(sorted(pipelines)))]
+        rectified = camera is None or data.draw(st.booleans())
+        reached["pipeline"] += 1
+        result = only_our_errors(pipeline.process, left, right, camera, rectified=rectified)
+        if result is not None:
+            assert result.disparity.shape == (height, width) and result.disparity.dtype == np.float32
+
+    check()
+    assert reached["pipeline"] >= 0.75 * reached["examples"], reached

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
+from stereo_depth.atomic_output import OutputError
 from stereo_depth.bag.export import read_ply
 from stereo_depth.bag.ground_truth import read_ground_truth_index
 from stereo_depth.bag.make import StreamLayout, write_stream
@@ -320,7 +321,7 @@ def test_existing_output_is_refused_unless_overwrite(tmp_path: Path) -> None:
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    with pytest.raises(BagError, match="--overwrite"):
+    with pytest.raises(OutputError, match="--overwrite"):
         process_bag(MIDDLEBURY_BAG, out, make_params())
     assert (out / "keep.txt").read_text() == "mine"
     process_bag(MIDDLEBURY_BAG, out, make_params(), ProcessOptions(overwrite=True))

@@ -162,3 +162,25 @@ def test_check_calibration_says_error_with_a_rotated_calibration(
     assert code == 2
     assert stdout.strip().splitlines()[-1].startswith("verdict: ERROR")
     assert "recalibrate" in stdout
+
+
+def test_a_second_calibration_replaces_the_first_as_a_whole(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calib"
+    assert run_cli(["calibrate", str(CHESSBOARD), *CALIBRATE, "--out", str(out)], capsys)[0] == 0
+    first = (out / "left.yaml").read_text()
+    few = copy_pairs(tmp_path / "six", ["01", "02", "03", "05", "06", "07"])
+    assert run_cli(["calibrate", str(few), *CALIBRATE, "--out", str(out)], capsys)[0] == 0
+    assert (out / "left.yaml").read_text() != first  # six views calibrate a little differently
+    assert "views used: 6" in (out / "report.txt").read_text()  # every file is the second run's
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calib", "six"]  # nothing left beside it
+
+
+def test_an_output_folder_with_other_files_is_refused_untouched(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "config"
+    out.mkdir()
+    (out / "robot.yaml").write_text("mine")
+    code, _, err = run_cli(["calibrate", str(CHESSBOARD), *CALIBRATE, "--out", str(out)], capsys)
+    assert code == 1 and err.count("ERROR:") == 1 and "holds other files (robot.yaml)" in err
+    assert [p.name for p in out.iterdir()] == ["robot.yaml"]

@@ -14,7 +14,7 @@ from stereo_depth.errors import CalibrationError
 from stereo_depth.euroc import stereo_camera_infos
 from stereo_depth.scenes import load_scene
 
-from conftest import EUROC, SCENES
+from conftest import EUROC, SCENES, read_image
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +25,8 @@ def euroc_camera() -> StereoCamera:
 def euroc_pair(index: int = 0) -> tuple[np.ndarray, np.ndarray]:
     name = sorted((EUROC / "left").glob("*.png"))[index].name
     return (
-        cv2.imread(str(EUROC / "left" / name), cv2.IMREAD_GRAYSCALE),
-        cv2.imread(str(EUROC / "right" / name), cv2.IMREAD_GRAYSCALE),
+        read_image(EUROC / "left" / name, cv2.IMREAD_GRAYSCALE),
+        read_image(EUROC / "right" / name, cv2.IMREAD_GRAYSCALE),
     )
 
 

@@ -7,9 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import cv2
-
-from conftest import SCENES
+from conftest import SCENES, read_image
 
 CLI = [sys.executable, "-m", "stereo_depth.cli"]
 
@@ -35,7 +33,7 @@ def test_eval_prints_table_writes_json_and_pictures(tmp_path: Path) -> None:
     assert [s["scene"] for s in report["scenes"]] == ["scenes/tsukuba", "scenes/artl"]
     assert set(report["mean"]) == {"bad1", "bad2", "bad4", "bad2_est", "density", "epe", "ms"}
     assert 0.0 < report["mean"]["bad2"] < 0.25
-    picture = cv2.imread(str(tmp_path / "pics" / "scenes_artl.png"))
+    picture = read_image(tmp_path / "pics" / "scenes_artl.png")
     assert picture.shape == (277, 4 * 347, 3)  # left | ground truth | ours | error map
 
 

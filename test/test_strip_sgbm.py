@@ -15,7 +15,7 @@ from stereo_depth.core.params import make_params
 from stereo_depth.euroc import stereo_camera_infos
 from stereo_depth.scenes import load_scene
 
-from conftest import EUROC, SCENES
+from conftest import EUROC, SCENES, read_image
 
 
 def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -26,7 +26,7 @@ def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
         pairs.append((name, *grey))
     left = sorted((EUROC / "left").glob("*.png"))[0]
     camera = StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", "cam"))
-    raw = [cv2.imread(str(EUROC / side / left.name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]
+    raw = [read_image(EUROC / side / left.name, cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]
     pairs.append(("euroc", camera.rectify(raw[0], "left"), camera.rectify(raw[1], "right")))
     return pairs
 

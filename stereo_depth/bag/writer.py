@@ -1,15 +1,12 @@
 """Results into a rosbag2 that appears under its final name only when it is complete.
 
 rosbags' `Writer.__exit__` writes metadata.yaml even when the block raised, so a failed run would leave
-a bag that looks whole. `BagWriter` writes into `<parent>/.<name>.<random>/<name>/` (same filesystem,
-so the final step is one rename) and deletes that folder on any error, Ctrl-C included.
+a bag that looks whole. `BagWriter` writes into an `AtomicFolder` (a hidden folder beside the target,
+published in one rename) and aborts the writer on any error, Ctrl-C included.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal
@@ -17,24 +14,14 @@ from typing import Any, Literal
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
+from stereo_depth.atomic_output import AtomicFolder, check_output
 from stereo_depth.bag.types import serialize, typestore
 from stereo_depth.errors import BagError
 
+__all__ = ["STORAGES", "BagWriter", "check_output"]
+
 STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 BAG_VERSION: Literal[9] = 9  # what Jazzy's rosbag2 writes
-
-
-def check_output(path: Path, overwrite: bool) -> None:
-    """Refuse before any work is done, so a long run does not fail at its end."""
-    if path.exists() and not overwrite:
-        msg = f"{path} exists already; choose another output name or pass --overwrite"
-        raise BagError(msg)
-    if not path.parent.is_dir():
-        msg = f"{path.parent} is not a folder; create it first"
-        raise BagError(msg)
-    if not os.access(path.parent, os.W_OK | os.X_OK):
-        msg = f"cannot write in {path.parent} (permission denied); choose an output folder you can write to"
-        raise BagError(msg)
 
 
 class BagWriter:
@@ -50,25 +37,21 @@ class BagWriter:
         self.storage = storage
         self.overwrite = overwrite
         self.compress = compress and storage == "mcap"  # zstd chunks; ros2 bag play reads them natively
-        self._tmp: Path | None = None
+        self._folder: AtomicFolder | None = None
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> BagWriter:
-        check_output(self.path, self.overwrite)
-        try:
-            self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
-        except OSError as exc:  # read-only file system, or a permission os.access did not foresee
-            msg = f"cannot write in {self.path.parent} ({exc.strerror}); choose an output folder you can write to"
-            raise BagError(msg) from exc
-        writer = Writer(self._tmp / self.path.name, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
+        self._folder = AtomicFolder(self.path, overwrite=self.overwrite)
+        staging = self._folder.__enter__()
+        writer = Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
         if self.compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         try:
             writer.open()
         except WriterError as exc:
-            self._discard()
+            self._folder.__exit__(type(exc), exc, None)
             msg = f"cannot create bag {self.path}: {exc}"
             raise BagError(msg) from exc
         self._writer = writer
@@ -88,32 +71,14 @@ class BagWriter:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> Literal[False]:
         writer, self._writer = self._writer, None
-        if writer is None:
+        if writer is None or self._folder is None:
             return False
         if exc_type is not None:
             writer.abort()
-            self._discard()
-            return False
+            return self._folder.__exit__(exc_type, exc, tb)
         try:
             writer.close()
-            self._publish()
-        except BaseException:
-            self._discard()
+        except BaseException as error:
+            self._folder.__exit__(type(error), error, error.__traceback__)
             raise
-        return False
-
-    def _publish(self) -> None:
-        """Move the finished bag to its final name (replacing an old one only when asked to)."""
-        assert self._tmp is not None
-        built = self._tmp / self.path.name
-        if self.path.exists():
-            check_output(self.path, self.overwrite)
-            old = self._tmp / "replaced"
-            self.path.rename(old)
-        built.rename(self.path)
-        self._discard()
-
-    def _discard(self) -> None:
-        if self._tmp is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
-            self._tmp = None
+        return self._folder.__exit__(None, None, None)

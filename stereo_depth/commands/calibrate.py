@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from stereo_depth.atomic_output import AtomicFolder
 from stereo_depth.camera_info_yaml import camera_info_to_yaml
 from stereo_depth.core.calibration import (
     MIN_VIEWS,
@@ -28,6 +27,7 @@ from stereo_depth.errors import CalibrationError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PICTURE = "rectified.png"
+OUTPUTS = ("left.yaml", "right.yaml", "report.txt", PICTURE)  # everything --out DIR holds
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -125,25 +125,26 @@ def picture(views: Views, result: StereoCalibration) -> np.ndarray:
 
 
 def write_outputs(out: Path, files: dict[str, bytes]) -> None:
-    """All files appear together or none: written in a temporary folder next to `out`, then moved."""
+    """All files appear together or none: `out` is replaced as a whole folder, so it may hold only
+    what an earlier calibration wrote (checked before any work, in `_check_args`)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with AtomicFolder(out, overwrite=True) as staging:
+        staging.mkdir()
         for name, data in files.items():
-            (tmp / name).write_bytes(data)
-        if out.exists():
-            for name in files:
-                (tmp / name).replace(out / name)
-        else:
-            tmp.rename(out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+            (staging / name).write_bytes(data)
 
 
 def _check_args(args: argparse.Namespace) -> Board:
     board = parse_board(args.board, args.square)
     if args.out.exists() and not args.out.is_dir():
         msg = f"--out {args.out} is a file; pass a folder"
+        raise CalibrationError(msg)
+    foreign = sorted(p.name for p in args.out.iterdir() if p.name not in OUTPUTS) if args.out.is_dir() else []
+    if foreign:
+        msg = (
+            f"--out {args.out} holds other files ({', '.join(foreign[:5])}); the calibration replaces the whole "
+            "folder, so pass a new folder or one that holds only an earlier calibration"
+        )
         raise CalibrationError(msg)
     if args.every < 1 or args.min_views < 1:
         msg = "--every and --min-views must be at least 1"
