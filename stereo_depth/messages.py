@@ -321,25 +321,44 @@ def depth_to_cloud(
     color: np.ndarray | None = None,
     avoid_padding: bool = False,
     buffer: CloudBuffer | None = None,
+    *,
+    organized: bool = True,
+    voxel_size: float = 0.0,
 ) -> Any:
-    """Organized PointCloud2 (height x width) of a depth image, NaN for invalid points, is_dense false:
-    the one cloud builder. x, y, z are computed straight into the message's buffer (no points array).
+    """PointCloud2 of a depth image: the one cloud builder.
 
-    `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous cloud (see CloudBuffer).
+    `organized`: height x width points, NaN for invalid ones, is_dense false (stereo_image_proc's
+    layout), x, y, z computed straight into the message's buffer. Otherwise the valid points only
+    (REP 117's dense cloud: height 1, is_dense true), thinned to one point per `voxel_size` voxel when
+    that is > 0 (the members' centroid, the colour of one of them).
+    `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous organized cloud (see
+    CloudBuffer).
     """
-    height, width = depth.shape
     fields, point_step = cloud_layout(color is not None, avoid_padding)
-    key = (height, width, tuple(fields), point_step)
-    data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
-    records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
-    depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
-    if color is not None:
-        rgb_offset = fields[3][1]
-        rgb = records[:, :, rgb_offset : rgb_offset + 4].view(np.uint32)[:, :, 0]
-        if color.ndim == 2:  # grey: r = g = b
-            np.multiply(color, np.uint32(0x010101), out=rgb, dtype=np.uint32)
-        else:
-            rgb[...] = pack_rgb(color)
+    if organized:
+        height, width = depth.shape
+        key = (height, width, tuple(fields), point_step)
+        data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
+        records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
+        depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
+        if color is not None:
+            _packed(color, out=_rgb_view(records, fields))
+    else:
+        v, u = np.nonzero(np.isfinite(depth))
+        z = depth[v, u]
+        xyz = np.empty((z.size, 3), np.float32)
+        np.multiply(z, rays.x[0, u], out=xyz[:, 0])
+        np.multiply(z, rays.y[v, 0], out=xyz[:, 1])
+        xyz[:, 2] = z
+        rgb = _packed(color)[v, u] if color is not None else None
+        if voxel_size > 0:
+            xyz, rgb = voxel_thinned(xyz, rgb, voxel_size)
+        height, width = 1, len(xyz)
+        data = CloudBuffer().get(types, (), width * point_step)
+        records = np.frombuffer(data, dtype=np.uint8).reshape(1, width, point_step)
+        records.view(np.float32)[0, :, 0:3] = xyz
+        if rgb is not None:
+            _rgb_view(records, fields)[0] = rgb
     return _with_data(
         types,
         types.PointCloud2,
@@ -351,8 +370,42 @@ def depth_to_cloud(
         is_bigendian=sys.byteorder == "big",
         point_step=point_step,
         row_step=point_step * width,
-        is_dense=False,
+        is_dense=not organized,
     )
+
+
+def _packed(color: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) PCL rgb of a BGR or grey (r = g = b) image, into `out` when given."""
+    if out is None:
+        out = np.empty(color.shape[:2], np.uint32)
+    if color.ndim == 2:
+        np.multiply(color, np.uint32(0x010101), out=out, dtype=np.uint32)
+    else:
+        out[...] = pack_rgb(color)
+    return out
+
+
+def _rgb_view(records: np.ndarray, fields: list[tuple[str, int]]) -> np.ndarray:
+    offset = fields[3][1]
+    view: np.ndarray = records[:, :, offset : offset + 4].view(np.uint32)[:, :, 0]
+    return view
+
+
+def voxel_thinned(xyz: np.ndarray, rgb: np.ndarray | None, size: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point per occupied cube of edge `size` (metres): the centroid of its points, and the colour
+    of one of them (a mean of packed colours would be no colour at all)."""
+    if len(xyz) == 0:
+        return xyz, rgb
+    cells = np.floor(xyz / np.float32(size)).astype(np.int64)
+    cells -= cells.min(axis=0)
+    spans = cells.max(axis=0) + 1
+    ids = (cells[:, 0] * spans[1] + cells[:, 1]) * spans[2] + cells[:, 2]
+    _, first, which = np.unique(ids, return_index=True, return_inverse=True)
+    counts = np.bincount(which).astype(np.float64)
+    centroids = np.empty((len(first), 3), np.float32)
+    for axis in range(3):
+        centroids[:, axis] = np.bincount(which, weights=xyz[:, axis]) / counts
+    return centroids, rgb[first] if rgb is not None else None
 
 
 def cloud_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:

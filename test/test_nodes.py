@@ -99,6 +99,10 @@ def artl() -> Pair:
 
 @pytest.fixture(scope="module")
 def euroc() -> Pair:
+    return euroc_pair()
+
+
+def euroc_pair() -> Pair:
     """Raw, distorted EuRoC pair: only the nodes' rectification makes it matchable."""
     name = sorted((EUROC / "left").glob("*.png"))[0].name
     left = read_image(EUROC / "left" / name, cv2.IMREAD_GRAYSCALE)

@@ -29,6 +29,7 @@ from stereo_depth.frames import (
     OUTPUTS,
     Geometry,
     OutputOptions,
+    OutputState,
     StereoFrame,
     decode_frame,
     geometry_outputs,
@@ -36,7 +37,7 @@ from stereo_depth.frames import (
     match_frame,
     result_geometry,
 )
-from stereo_depth.messages import CloudBuffer, MessageTypes
+from stereo_depth.messages import MessageTypes
 
 
 @dataclass
@@ -105,16 +106,17 @@ def frame_outputs(
     frame: StereoFrame,
     result: StereoResult,
     options: ProcessOptions,
-    cloud_buffer: CloudBuffer | None = None,
+    state: OutputState,
 ) -> tuple[dict[str, Any], Geometry | None]:
     """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
     the geometry they were built from (None when no depth output or PLY was asked for)."""
     messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
     wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
+    wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
     if not wanted and options.ply_dir is None:
         return messages, None
-    geometry = result_geometry(pipeline, result)
-    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, cloud_buffer))
+    geometry = result_geometry(pipeline, frame, result)
+    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, state))
     return messages, geometry
 
 
@@ -187,11 +189,11 @@ def process_bag(
     ):
         topics = reader.topics
         progress = Progress(reader.count(topics.names[0]))
-        cloud_buffer = CloudBuffer()  # the writer serializes each message before the next frame reuses it
+        state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for frame in reader.frames():
             try:
                 decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.names)
-                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, cloud_buffer)
+                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue

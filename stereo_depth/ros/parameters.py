@@ -217,6 +217,8 @@ def render_config_yaml() -> str:
 def _yaml_value(value: object) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
+    if value == "":
+        return '""'  # a bare empty value would read back as null, not as an empty string
     return str(value)
 
 
