@@ -335,30 +335,19 @@ def depth_to_cloud(
     CloudBuffer).
     """
     fields, point_step = cloud_layout(color is not None, avoid_padding)
-    if organized:
-        height, width = depth.shape
-        key = (height, width, tuple(fields), point_step)
-        data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
-        records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
-        depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
-        if color is not None:
-            _packed(color, out=_rgb_view(records, fields))
-    else:
-        v, u = np.nonzero(np.isfinite(depth))
-        z = depth[v, u]
-        xyz = np.empty((z.size, 3), np.float32)
-        np.multiply(z, rays.x[0, u], out=xyz[:, 0])
-        np.multiply(z, rays.y[v, 0], out=xyz[:, 1])
-        xyz[:, 2] = z
-        rgb = _packed(color)[v, u] if color is not None else None
+    height, width = depth.shape
+    key = (height, width, tuple(fields), point_step)
+    data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
+    records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
+    depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
+    if color is not None:
+        _packed(color, out=_rgb_view(records, fields))
+    if not organized:  # the valid points, copied out of the organized records (faster than gathering)
+        kept = np.compress(np.isfinite(depth).ravel(), records.reshape(-1, point_step), axis=0)
         if voxel_size > 0:
-            xyz, rgb = voxel_thinned(xyz, rgb, voxel_size)
-        height, width = 1, len(xyz)
-        data = CloudBuffer().get(types, (), width * point_step)
-        records = np.frombuffer(data, dtype=np.uint8).reshape(1, width, point_step)
-        records.view(np.float32)[0, :, 0:3] = xyz
-        if rgb is not None:
-            _rgb_view(records, fields)[0] = rgb
+            kept = _voxel_records(kept, fields, voxel_size)
+        height, width = 1, len(kept)
+        data = _bytes(types, kept)
     return _with_data(
         types,
         types.PointCloud2,
@@ -386,26 +375,43 @@ def _packed(color: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
 
 
 def _rgb_view(records: np.ndarray, fields: list[tuple[str, int]]) -> np.ndarray:
+    """The rgb field of (..., point_step) uint8 records as uint32, (...)."""
     offset = fields[3][1]
-    view: np.ndarray = records[:, :, offset : offset + 4].view(np.uint32)[:, :, 0]
+    view: np.ndarray = records[..., offset : offset + 4].view(np.uint32)[..., 0]
     return view
+
+
+def _voxel_records(records: np.ndarray, fields: list[tuple[str, int]], size: float) -> np.ndarray:
+    """(N, point_step) records thinned to one per voxel (`voxel_thinned`), padding zero."""
+    rgb = _rgb_view(records, fields) if len(fields) > 3 else None
+    xyz, rgb = voxel_thinned(records.view(np.float32)[:, 0:3], rgb, size)
+    out = np.zeros((len(xyz), records.shape[1]), np.uint8)
+    out.view(np.float32)[:, 0:3] = xyz
+    if rgb is not None:
+        _rgb_view(out, fields)[...] = rgb
+    return out
 
 
 def voxel_thinned(xyz: np.ndarray, rgb: np.ndarray | None, size: float) -> tuple[np.ndarray, np.ndarray | None]:
     """One point per occupied cube of edge `size` (metres): the centroid of its points, and the colour
-    of one of them (a mean of packed colours would be no colour at all)."""
+    of one of them (a mean of packed colours would be no colour at all). Sorting by cube is the cost."""
     if len(xyz) == 0:
         return xyz, rgb
-    cells = np.floor(xyz / np.float32(size)).astype(np.int64)
-    cells -= cells.min(axis=0)
-    spans = cells.max(axis=0) + 1
-    ids = (cells[:, 0] * spans[1] + cells[:, 1]) * spans[2] + cells[:, 2]
-    _, first, which = np.unique(ids, return_index=True, return_inverse=True)
-    counts = np.bincount(which).astype(np.float64)
-    centroids = np.empty((len(first), 3), np.float32)
+    scale = np.float32(1.0 / size)
+    ids = np.zeros(len(xyz), np.int64)
+    for axis in range(3):  # column by column: reductions over an (N, 3) array's axis 0 are slow
+        cell = np.floor(xyz[:, axis] * scale).astype(np.int64)
+        low = cell.min()
+        ids *= cell.max() - low + 1
+        ids += cell - low
+    order = np.argsort(ids)
+    ids = ids[order]
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    counts = np.diff(np.r_[starts, len(ids)])
+    centroids = np.empty((len(starts), 3), np.float32)
     for axis in range(3):
-        centroids[:, axis] = np.bincount(which, weights=xyz[:, axis]) / counts
-    return centroids, rgb[first] if rgb is not None else None
+        centroids[:, axis] = np.add.reduceat(xyz[order, axis], starts, dtype=np.float64) / counts
+    return centroids, rgb[order[starts]] if rgb is not None else None
 
 
 def cloud_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
