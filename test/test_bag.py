@@ -356,6 +356,16 @@ def test_process_honours_max_image_pixels_and_names_the_topic(
     assert f"skipped 6x: {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in out
 
 
+def test_a_mask_that_cannot_be_used_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    assert main(["process", str(EUROC_BAG), str(out), "--set", f"mask_image={tmp_path / 'none.png'}"]) == 1
+    assert f"ERROR: mask_image {tmp_path / 'none.png'}: cannot read it" in capsys.readouterr().err
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.full((48, 75), 255, np.uint8))
+    assert main(["process", str(EUROC_BAG), str(out), "--set", f"mask_image={small}"]) == 1
+    assert f"skipped 6x: mask_image {small} is 75x48 but the left camera is 752x480" in capsys.readouterr().out
+
+
 def test_misspelt_parameters_name_the_closest_known_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     params = tmp_path / "params.yaml"
     node_only = "publish_depth: false, matching_threads: 2"  # a stereo_node file: no warning for these
