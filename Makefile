@@ -21,8 +21,10 @@ $(STAMP): requirements.txt setup.py setup.cfg
 	$(VENV)/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	@touch $@
 
+# Two workers, each test file on one of them (its module fixtures start its nodes once); each worker
+# has a ROS domain id of its own (test/conftest.py), so their DDS traffic never mixes.
 test: venv
-	$(VENV)/bin/python -m pytest -q test
+	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile test
 
 demo: venv
 	$(VENV)/bin/stereo-depth demo

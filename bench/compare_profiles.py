@@ -15,7 +15,7 @@ import numpy as np
 from stereo_depth.core.metrics import accuracy, colorize_disparity, label
 from stereo_depth.core.params import PROFILES, make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.scenes import load_scene
 
 
 def main() -> None:

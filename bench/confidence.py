@@ -13,7 +13,7 @@ import numpy as np
 from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.scenes import load_scene
 
 
 def main() -> None:

@@ -27,7 +27,7 @@ from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.matching import Matcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import disparity_message
 from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.ros.types import RCLPY_TYPES

@@ -73,9 +73,9 @@ class Window:
 
 def stereo_messages(width: int, height: int) -> list[Any]:
     """Left image, left info, right image, right info of the artl pair at this size (stamps set later)."""
+    from stereo_depth.formats.scenes import load_scene
     from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
     from stereo_depth.ros.types import RCLPY_TYPES
-    from stereo_depth.scenes import load_scene
 
     scene = load_scene(SCENE)
     header = make_header(RCLPY_TYPES, 0, FRAME_ID)

@@ -23,13 +23,17 @@ class OutputError(StereoDepthError):
     """An output folder cannot be written where asked."""
 
 
-def check_output(path: Path, overwrite: bool) -> None:
-    """Refuse before any work is done, so a long run does not fail at its end."""
+def check_output(path: Path, overwrite: bool, *, is_file: bool = False) -> None:
+    """Refuse before any work is done, so a long run does not fail at its end. `is_file`: the output is
+    one file (a ROS 1 bag), not a folder."""
     if path.exists() and not overwrite:
         msg = f"{path} exists already; choose another output name or pass --overwrite"
         raise OutputError(msg)
-    if path.exists() and not path.is_dir():
+    if path.exists() and not path.is_dir() and not is_file:
         msg = f"{path} is a file; pass a folder name"
+        raise OutputError(msg)
+    if path.is_dir() and is_file:
+        msg = f"{path} is a folder; pass a file name"
         raise OutputError(msg)
     if not path.parent.is_dir():
         msg = f"{path.parent} is not a folder; create it first"
@@ -41,15 +45,17 @@ def check_output(path: Path, overwrite: bool) -> None:
 
 class AtomicFolder:
     """`with AtomicFolder(path, overwrite=...) as staging:` fill `staging` (it does not exist yet:
-    create it, or let a writer create it); it becomes `path` when the block ends without an error."""
+    create it, or let a writer create it); it becomes `path` when the block ends without an error.
+    With `is_file` the output is one file written at `staging` (a ROS 1 bag), published the same way."""
 
-    def __init__(self, path: Path, *, overwrite: bool = False) -> None:
+    def __init__(self, path: Path, *, overwrite: bool = False, is_file: bool = False) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
+        self.is_file = is_file
         self._tmp: Path | None = None
 
     def __enter__(self) -> Path:
-        check_output(self.path, self.overwrite)
+        check_output(self.path, self.overwrite, is_file=self.is_file)
         try:
             self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
         except OSError as exc:  # read-only file system, or a permission os.access did not foresee
@@ -75,11 +81,11 @@ class AtomicFolder:
         return False
 
     def _publish(self, built: Path, aside: Path) -> None:
-        if not built.is_dir():
+        if not (built.is_file() if self.is_file else built.is_dir()):
             msg = f"nothing was written for {self.path}"
             raise OutputError(msg)
         if self.path.exists():
-            check_output(self.path, self.overwrite)  # it may have appeared while we worked
+            check_output(self.path, self.overwrite, is_file=self.is_file)  # it may have appeared while we worked
             self.path.rename(aside)
         try:
             built.rename(self.path)

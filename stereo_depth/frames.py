@@ -38,6 +38,7 @@ from stereo_depth.messages import (
     array_to_image,
     camera_info_from_msg,
     camera_info_to_msg,
+    compressed_to_pipeline,
     depth_to_cloud,
     disparity_to_msg,
     image_to_pipeline,
@@ -166,8 +167,14 @@ def named(name: str, convert: Callable[..., T], *args: Any) -> T:
         raise type(exc)(f"{name}: {exc}") from exc
 
 
-def decode_image(msg: Any, max_pixels: int) -> np.ndarray:
-    """An input image message as the pipeline takes it: the one place input images are decoded."""
+def decode_image(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
+    """An input image message as the pipeline takes it: the one place input images are decoded.
+
+    A sensor_msgs/CompressedImage (it has a format, no encoding: image_transport's `compressed`, JPEG or
+    PNG) is decoded here, once per image, on whichever thread processes the frame (cv2.imdecode
+    releases the GIL, so a node's executor keeps receiving meanwhile)."""
+    if not hasattr(msg, "encoding"):
+        return compressed_to_pipeline(msg, max_pixels)
     return image_to_pipeline(msg, max_pixels)
 
 

@@ -66,6 +66,7 @@ class MessageTypes:
     Header: Any
     Time: Any
     Image: Any
+    CompressedImage: Any
     CameraInfo: Any
     RegionOfInterest: Any
     DisparityImage: Any
@@ -170,13 +171,98 @@ def image_to_pipeline(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndar
     encoding = str(msg.encoding)
     if encoding not in CAMERA_ENCODINGS:
         raise _unsupported(encoding)
-    pixels = image_to_array(msg, max_pixels)
-    code = CAMERA_ENCODINGS[encoding][2]
+    return _to_pipeline(image_to_array(msg, max_pixels), CAMERA_ENCODINGS[encoding][2])
+
+
+def _to_pipeline(pixels: np.ndarray, code: int | None) -> np.ndarray:
     if code is not None:
         pixels = cv2.cvtColor(pixels, code)
     if pixels.ndim == 3 and pixels.dtype != np.uint8:
         pixels = (pixels >> 8).astype(np.uint8)
     return pixels
+
+
+# ---------------------------------------------------------------- compressed images (image_transport)
+
+COMPRESSED_FORMATS = ("jpeg", "png")
+_JPEG_END = b"\xff\xd9"
+
+
+def compressed_format(format_: str) -> tuple[str, str]:
+    """(codec, encoding of the compressed pixels) from image_transport's format string.
+
+    "bgr8; jpeg compressed bgr8" -> ("jpeg", "bgr8"); plain "jpeg" / "png" -> (codec, ""). The pixels
+    are in the order the encoder was given: image_transport hands it BGR for every colour image.
+    """
+    text = format_.strip().lower()
+    _, _, compressed = text.rpartition(";")
+    words = compressed.split()
+    codec = next((w for w in words if w in COMPRESSED_FORMATS or w == "jpg"), "")
+    if codec not in COMPRESSED_FORMATS and codec != "jpg":
+        msg = (
+            f"compressed image format '{format_}' is not supported; expected image_transport's jpeg or png "
+            "('bgr8; jpeg compressed bgr8', 'mono8; png compressed mono8', 'jpeg', 'png')"
+        )
+        raise ImageError(msg)
+    after = words[words.index("compressed") + 1 :] if "compressed" in words else []
+    return ("jpeg" if codec == "jpg" else codec), (after[0] if after else "")
+
+
+def compressed_to_pipeline(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
+    """A sensor_msgs/CompressedImage decoded once into pipeline pixels (mono or BGR uint8, mono16 kept).
+
+    cv2.imdecode releases the GIL, so decoding on the node's worker thread does not stall the executor.
+    A damaged payload (cut off, or not a JPEG / PNG at all) raises ImageError: the frame is skipped.
+    """
+    codec, pixel_encoding = compressed_format(str(msg.format))
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size == 0:
+        msg_text = f"compressed image ({msg.format}) has no data; the driver published an empty image"
+        raise ImageError(msg_text)
+    if codec == "jpeg" and data[-2:].tobytes() != _JPEG_END:
+        msg_text = (
+            f"compressed image ({msg.format}, {data.size} bytes) is a damaged JPEG: it does not end with the "
+            "JPEG end marker (cut off in transport or recording)"
+        )
+        raise ImageError(msg_text)
+    pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        msg_text = (
+            f"compressed image ({msg.format}, {data.size} bytes) cannot be decoded as {codec}: the data is damaged"
+        )
+        raise ImageError(msg_text)
+    height, width = pixels.shape[:2]
+    if height * width > max_pixels:
+        msg_text = (
+            f"image is {width}x{height}, more than the limit of {max_pixels} pixels; "
+            "raise the max_image_pixels parameter if images this large are intended"
+        )
+        raise ImageError(msg_text)
+    code = None
+    if pixels.ndim == 3:
+        rgb_order = pixel_encoding.startswith("rgb")
+        if pixels.shape[2] == 4:
+            code = cv2.COLOR_RGBA2BGR if rgb_order else cv2.COLOR_BGRA2BGR
+        elif rgb_order:
+            code = cv2.COLOR_RGB2BGR
+    return _to_pipeline(pixels, code)
+
+
+def array_to_compressed(types: MessageTypes, header: Any, pixels: np.ndarray, codec: str, quality: int = 95) -> Any:
+    """A CompressedImage as image_transport's compressed publisher writes it (format string included;
+    colour as BGR, JPEG quality 95 and PNG level 3 are its defaults)."""
+    encoding = encoding_for(pixels)
+    if codec == "jpeg" and pixels.dtype != np.uint8:
+        msg = f"JPEG holds 8-bit images only, not {encoding}; use png"
+        raise ImageError(msg)
+    params = [cv2.IMWRITE_JPEG_QUALITY, quality] if codec == "jpeg" else [cv2.IMWRITE_PNG_COMPRESSION, 3]
+    ok, data = cv2.imencode(".jpg" if codec == "jpeg" else ".png", pixels, params)
+    if not ok:
+        msg = f"cannot encode a {encoding} image as {codec}"
+        raise ImageError(msg)
+    return types.CompressedImage(
+        header=header, format=f"{encoding}; {codec} compressed {encoding}", data=_bytes(types, data)
+    )
 
 
 def encoding_for(array_: np.ndarray) -> str:

@@ -17,6 +17,7 @@ from stereo_depth.errors import ParameterError
 from stereo_depth.frames import OutputOptions
 
 RELIABILITY_CHOICES = ("auto", "reliable", "best_effort")
+IMAGE_TRANSPORTS = ("raw", "compressed")
 INTERPOLATIONS = {0: "nearest", 1: "linear", 2: "cubic", 3: "area", 4: "lanczos4"}
 
 
@@ -77,6 +78,24 @@ class NodeOptions:
             1,
         ),
     )
+    image_transport: str = field(
+        default="raw",
+        metadata=_spec(
+            "Image inputs, read at start-up (stereo_image_proc's meaning): raw (sensor_msgs/Image) or "
+            "compressed (<image topic>/compressed, sensor_msgs/CompressedImage, JPEG or PNG)"
+        ),
+    )
+    left_camera_info_url: str = field(
+        default="",
+        metadata=_spec(
+            "Left camera_info YAML, read at start-up (file:///path/left.yaml, as camera_info_manager); "
+            "when set it replaces the left/camera_info topic"
+        ),
+    )
+    right_camera_info_url: str = field(
+        default="",
+        metadata=_spec("Right camera_info YAML, as left_camera_info_url; replaces the right/camera_info topic"),
+    )
     interpolation: int = field(
         default=1,
         metadata=_spec("Rectification interpolation: 0 nearest, 1 linear, 2 cubic, 3 area, 4 lanczos4", 0, 4, 1),
@@ -85,6 +104,9 @@ class NodeOptions:
     def validate(self) -> NodeOptions:
         if self.input_reliability not in RELIABILITY_CHOICES:
             msg = f"input_reliability '{self.input_reliability}' must be one of {', '.join(RELIABILITY_CHOICES)}"
+            raise ParameterError(msg)
+        if self.image_transport not in IMAGE_TRANSPORTS:
+            msg = f"image_transport '{self.image_transport}' must be one of {', '.join(IMAGE_TRANSPORTS)}"
             raise ParameterError(msg)
         return self
 
@@ -116,6 +138,8 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
+CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
+STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 
 
 @dataclass(frozen=True)

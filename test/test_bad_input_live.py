@@ -8,6 +8,7 @@ node to report it, then publishes the good artl pair and compares the disparity 
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, Image
@@ -25,6 +26,7 @@ from stereo_msgs.msg import DisparityImage
 from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     array_to_image,
     camera_info_from_msg,
@@ -33,8 +35,8 @@ from stereo_depth.messages import (
     image_to_pipeline,
     make_header,
 )
+from stereo_depth.ros import problems
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.scenes import load_scene
 
 from conftest import SCENES
 
@@ -438,18 +440,51 @@ def test_stamps_going_back_like_a_looping_bag_restart_pairing(node: FaultyNode) 
 def test_only_one_camera_publishing_is_reported_naming_the_silent_topics(node: FaultyNode) -> None:
     mark, since = node.log_mark(), len(node.diagnostics.messages)
     silent = f"{NS}/right/image_raw"
-    deadline = time.monotonic() + 15.0
+
+    def warned() -> bool:
+        """A status at WARN whose message names the silent topic (earlier errors age out after 5 s)."""
+        return any(
+            a.status[0].level == DiagnosticStatus.WARN and silent in a.status[0].message
+            for a in node.diagnostics.messages[since:]
+        )
+
+    deadline = time.monotonic() + 20.0
     while time.monotonic() < deadline:
         node.publish(node.scene.messages(next(_stamps)), only=(LEFT_IMAGE, LEFT_INFO))
-        if any(silent in line for line in node.process.output()[mark:].splitlines()):
+        if warned() and any(silent in line for line in node.process.output()[mark:].splitlines()):
             break
         time.sleep(0.1)
     line = node.wait_log(mark, "no messages on", silent, f"{NS}/right/camera_info", f"while {NS}/left/camera_info")
     assert "topic remapping" in line
+    assert warned()
     values = node.wait_diagnostics(since, "silent inputs", silent)
     assert f"{NS}/left/image_raw (" not in values["silent inputs"]
     node.good_frame_is_exact()
     node.wait_diagnostics(len(node.diagnostics.messages), "silent inputs", "none")
+
+
+def test_a_flood_of_one_bad_input_is_logged_once_a_period_and_turns_diagnostics_to_warn(node: FaultyNode) -> None:
+    """50 bad sets: the node says so at most once per 5 s (plus the count of the rest), skips all 50,
+    and its diagnostics status is WARN naming the problem."""
+    mark, since = node.log_mark(), len(node.diagnostics.messages)
+    start = time.monotonic()
+    flood = [bad(node.scene, set_info(RIGHT_IMAGE, encoding="uyvy")) for _ in range(50)]
+    for messages in flood:
+        node.publish(messages)
+    node.good_frame_is_exact()  # processed after every set of the flood
+    periods = math.ceil((time.monotonic() - start) / problems.PERIOD_S)
+    lines = [line for line in node.process.output()[mark:].splitlines() if "'uyvy' is not supported" in line]
+    assert 1 <= len(lines) <= periods, lines
+    assert all(f"{NS}/right/image_raw" in line for line in lines)
+    assert all("more like it since the last report" in line for line in lines[1:])
+    assert not set(node.disparity.stamps()) & {stamp_of(m) for m in flood}
+
+    def skipped_status() -> Any:
+        statuses = [a.status[0] for a in node.diagnostics.messages[since:]]
+        return next((s for s in statuses if "uyvy" in s.message), None)
+
+    status = wait_until(skipped_status, "a status about the skipped frames")
+    assert status.level == DiagnosticStatus.WARN and status.message.startswith("frames skipped:")
 
 
 # ------------------------------------------------------------------ parameters

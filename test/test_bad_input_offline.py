@@ -16,10 +16,10 @@ import pytest
 
 from stereo_depth.bag.make import StreamLayout, write_stream
 from stereo_depth.bag.sources import read_frames
-from stereo_depth.bag.types import rosbags_types, typestore
+from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
-from stereo_depth.messages import make_header
+from stereo_depth.messages import array_to_image, make_header
 
 from conftest import SCENES
 
@@ -109,18 +109,16 @@ def test_bag_without_the_requested_topics_lists_the_topics_it_has(
 
 
 def test_topics_of_the_wrong_message_type(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    """A bag recorded from image_transport's compressed topics under the raw names."""
-    bag = tmp_path / "compressed"
-    types = typestore().types
+    """A camera_info topic that carries images (a remap gone wrong while recording)."""
+    bag = tmp_path / "wrong_type"
     with BagWriter(bag) as writer:
-        write_stream(read_frames([SCENES / "artl"]), writer, StreamLayout(overrides={"left_image": "/unused"}))
+        write_stream(read_frames([SCENES / "artl"]), writer, StreamLayout(overrides={"left_info": "/unused"}))
         header = make_header(rosbags_types(), 1, "cam")
-        jpeg = types["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=np.zeros(8, np.uint8))
-        writer.write("/stereo/left/image_raw", jpeg, 1)
+        writer.write("/stereo/left/camera_info", array_to_image(rosbags_types(), header, np.zeros((2, 2), np.uint8)), 1)
     code, error = process(capsys, bag, tmp_path / "out")
     assert code == 1
-    assert "/stereo/left/image_raw is sensor_msgs/msg/CompressedImage, not sensor_msgs/msg/Image" in error
-    assert "decompress" in error
+    assert "/stereo/left/camera_info is sensor_msgs/msg/Image, not sensor_msgs/msg/CameraInfo" in error
+    assert "--camera-info" in error
     assert nothing_written(tmp_path / "out")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -28,10 +29,10 @@ from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import BagError, ParameterError
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import camera_info_from_msg, cloud_to_arrays, disparity_from_msg, image_to_array, stamp_to_ns
-from stereo_depth.scenes import load_scene
 
-from conftest import DATA, EUROC, SCENES
+from conftest import DATA, EUROC, SCENES, read_image
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 EUROC_BAG = BAGS / "euroc_raw"
@@ -249,6 +250,8 @@ def test_make_bag_restamps_renames_and_crops(tmp_path: Path) -> None:
 
 
 def test_make_bag_reads_ros_camera_info_yaml(tmp_path: Path) -> None:
+    """fx, the baseline and each camera's own cx from left.yaml / right.yaml reach the bag's camera_info
+    and, through `process`, the DisparityImage."""
     folder = tmp_path / "capture"
     (folder / "left").mkdir(parents=True)
     (folder / "right").mkdir()
@@ -257,21 +260,62 @@ def test_make_bag_reads_ros_camera_info_yaml(tmp_path: Path) -> None:
         cv2.imwrite(str(folder / "left" / f"{i:03d}.png"), scene.left)
         cv2.imwrite(str(folder / "right" / f"{i:03d}.png"), scene.right)
     h, w = scene.left.shape[:2]
-    for side, tx in (("left", 0.0), ("right", -0.16 * 500)):
+    fx, fy, baseline = 512.5, 510.0, 0.16
+    cx = {"left": w / 2 + 3.5, "right": w / 2 - 2.25}
+    for side, tx in (("left", 0.0), ("right", -baseline * fx)):
         calib = {
             "image_width": w,
             "image_height": h,
             "distortion_model": "plumb_bob",
-            "camera_matrix": {"rows": 3, "cols": 3, "data": [500, 0, w / 2, 0, 500, h / 2, 0, 0, 1]},
+            "camera_matrix": {"rows": 3, "cols": 3, "data": [fx, 0, cx[side], 0, fy, h / 2, 0, 0, 1]},
             "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0, 0, 0, 0, 0]},
             "rectification_matrix": {"rows": 3, "cols": 3, "data": [1, 0, 0, 0, 1, 0, 0, 0, 1]},
-            "projection_matrix": {"rows": 3, "cols": 4, "data": [500, 0, w / 2, tx, 0, 500, h / 2, 0, 0, 0, 1, 0]},
+            "projection_matrix": {"rows": 3, "cols": 4, "data": [fx, 0, cx[side], tx, 0, fy, h / 2, 0, 0, 0, 1, 0]},
         }
         (folder / f"{side}.yaml").write_text(yaml.safe_dump(calib))
     bag, out = tmp_path / "bag", tmp_path / "out"
     assert main(["make-bag", str(folder), str(bag)]) == 0
+    infos = read_messages(bag, [f"{NS}/left/camera_info", f"{NS}/right/camera_info"])
+    for side in ("left", "right"):
+        messages = infos[f"{NS}/{side}/camera_info"]
+        assert len(messages) == 2
+        for info in messages:
+            assert (info.width, info.height, info.distortion_model) == (w, h, "plumb_bob")
+            assert (info.k[0], info.k[2], info.k[4]) == (fx, cx[side], fy)
+            assert (info.p[0], info.p[2], info.p[5]) == (fx, cx[side], fy)
+    right = infos[f"{NS}/right/camera_info"][0]
+    assert -right.p[3] / right.p[0] == pytest.approx(baseline)
     summary = process_bag(bag, out, make_params())
     assert summary.frames_out == 2
+    for disparity in read_messages(out, [f"{NS}/disparity"])[f"{NS}/disparity"]:
+        assert (disparity.f, disparity.t) == (fx, pytest.approx(baseline))
+        assert disparity.min_disparity == -(cx["left"] - cx["right"])  # 0 minus the principal-point offset
+
+
+def test_make_bag_reads_a_euroc_mav0_folder(tmp_path: Path) -> None:
+    """EuRoC's own layout: mav0/cam0/data/<ns stamp>.png with mav0/cam0/sensor.yaml (and cam1)."""
+    mav0 = tmp_path / "V1_01_easy" / "mav0"
+    names = sorted(p.name for p in (EUROC / "left").glob("*.png"))[:3]
+    for cam, side in (("cam0", "left"), ("cam1", "right")):
+        (mav0 / cam / "data").mkdir(parents=True)
+        shutil.copy(EUROC / f"{cam}_sensor.yaml", mav0 / cam / "sensor.yaml")
+        for name in names:
+            shutil.copy(EUROC / side / name, mav0 / cam / "data" / name)
+    bag = tmp_path / "bag"
+    assert main(["make-bag", str(tmp_path / "V1_01_easy"), str(bag)]) == 0
+    topics = [f"{NS}/left/image_raw", f"{NS}/left/camera_info", f"{NS}/right/image_raw", f"{NS}/right/camera_info"]
+    messages = read_messages(bag, topics)
+    stamps = [int(Path(name).stem) for name in names]  # the file names' nanosecond stamps
+    for topic in topics:
+        assert [stamp_to_ns(m.header.stamp) for m in messages[topic]] == stamps, topic
+    for side, topic in (("left", topics[0]), ("right", topics[2])):
+        for name, image in zip(names, messages[topic], strict=True):
+            np.testing.assert_array_equal(image_to_array(image), read_image(EUROC / side / name, cv2.IMREAD_GRAYSCALE))
+    left_info, right_info = messages[topics[1]][0], messages[topics[3]][0]
+    assert (left_info.width, left_info.height, left_info.distortion_model) == (752, 480, "plumb_bob")
+    assert list(left_info.k[[0, 2, 4, 5]]) == [458.654, 367.215, 457.296, 248.375]  # cam0 intrinsics
+    np.testing.assert_allclose(left_info.d[:4], [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
+    assert -right_info.p[3] / right_info.p[0] == pytest.approx(0.1101, abs=0.0005)  # EuRoC: 110.1 mm
 
 
 # ---------------------------------------------------------------- failures leave nothing behind

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import yaml
 
-from stereo_depth.camera_info_yaml import camera_info_to_yaml, parse_camera_info_yaml, read_camera_info_yaml
 from stereo_depth.core.calibration import (
     Board,
     ImagePair,
@@ -23,6 +22,7 @@ from stereo_depth.core.calibration import (
 )
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import CalibrationError
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml, parse_camera_info_yaml, read_camera_info_yaml
 
 from conftest import DATA
 

@@ -9,7 +9,7 @@ from test_calibration import read_grey
 
 from stereo_depth.core.calibration_check import Level, check_rectified_pair
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.euroc import stereo_camera_infos
 
 from conftest import EUROC
 

@@ -14,10 +14,10 @@ from test_calibration_check import rotated_about_baseline
 from stereo_depth.bag.make import StreamLayout, write_stream
 from stereo_depth.bag.sources import SourceFrame
 from stereo_depth.bag.writer import BagWriter
-from stereo_depth.camera_info_yaml import camera_info_to_yaml, read_camera_info_yaml
 from stereo_depth.cli import main
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml, read_camera_info_yaml
+from stereo_depth.formats.euroc import stereo_camera_infos
 
 from conftest import DATA, EUROC
 
@@ -67,13 +67,24 @@ def test_calibrate_reads_left_and_right_subfolders(tmp_path: Path, capsys: pytes
     assert (tmp_path / "out" / "right.yaml").is_file()
 
 
-def test_calibrate_reads_a_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("name", "storage", "layout"),
+    [
+        ("board_bag", "mcap", StreamLayout(rate_hz=10.0)),
+        # as a camera being calibrated is often recorded: ROS 1, JPEG, no camera_info yet
+        ("board.bag", "rosbag1", StreamLayout(rate_hz=10.0, compress_images="jpeg", camera_info=False)),
+    ],
+    ids=["rosbag2", "ros1_jpeg_without_camera_info"],
+)
+def test_calibrate_reads_a_bag(
+    name: str, storage: str, layout: StreamLayout, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     unknown = CameraInfo.from_values(640, 480, np.zeros(9), np.zeros(5), np.eye(3), np.zeros(12))
     frames = [SourceFrame(p.name, p.left, p.right, unknown, unknown, None) for p in chessboard_pairs()]
-    with BagWriter(tmp_path / "board_bag") as writer:
-        write_stream(frames, writer, StreamLayout(rate_hz=10.0))
+    with BagWriter(tmp_path / name, storage=storage) as writer:
+        write_stream(frames, writer, layout)
     out = tmp_path / "out"
-    code, stdout, _ = run_cli(["calibrate", str(tmp_path / "board_bag"), *CALIBRATE, "--out", str(out)], capsys)
+    code, stdout, _ = run_cli(["calibrate", str(tmp_path / name), *CALIBRATE, "--out", str(out)], capsys)
     assert code == 0
     assert "views used: 10" in stdout
     assert read_camera_info_yaml(out / "left.yaml").width == 640
@@ -162,6 +173,20 @@ def test_check_calibration_says_error_with_a_rotated_calibration(
     assert code == 2
     assert stdout.strip().splitlines()[-1].startswith("verdict: ERROR")
     assert "recalibrate" in stdout
+
+
+def test_check_calibration_says_warn_with_a_slightly_rotated_calibration(
+    euroc_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """0.12 degrees about the baseline puts the rows ~1 px apart (measured 0.98): WARN, exit status 1."""
+    left, right = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
+    (tmp_path / "left.yaml").write_text(camera_info_to_yaml(left, "left"))
+    (tmp_path / "right.yaml").write_text(camera_info_to_yaml(rotated_about_baseline(right, 0.12), "right"))
+    code, stdout, stderr = run_cli(["check-calibration", str(euroc_bag), "--camera-info", str(tmp_path)], capsys)
+    assert code == 1 and "ERROR:" not in stderr
+    lines = stdout.strip().splitlines()
+    assert all(line.endswith("WARN") for line in lines[1:7])
+    assert lines[-1].startswith("verdict: WARN: 6 of 6 frames judged")
 
 
 def test_a_second_calibration_replaces_the_first_as_a_whole(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

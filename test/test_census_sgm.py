@@ -20,7 +20,7 @@ from stereo_depth.core.census_sgm import census_sgm, fill_holes
 from stereo_depth.core.matching import create_matcher
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
-from stereo_depth.scenes import load_scene as read_scene
+from stereo_depth.formats.scenes import load_scene as read_scene
 
 from conftest import SCENES as SCENE_ROOT
 

@@ -11,7 +11,7 @@ import pytest
 from stereo_depth.core.metrics import Accuracy, accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.scenes import load_scene
 
 from conftest import SCENES
 

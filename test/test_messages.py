@@ -14,6 +14,7 @@ from stereo_depth.bag.types import deserialize, rosbags_types, serialize
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import ImageError
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     CloudBuffer,
     array_to_image,
@@ -27,7 +28,6 @@ from stereo_depth.messages import (
     image_to_pipeline,
     make_header,
 )
-from stereo_depth.scenes import load_scene
 
 from conftest import SCENES
 

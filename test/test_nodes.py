@@ -27,7 +27,8 @@ from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
     array_to_image,
     camera_info_to_msg,
@@ -40,7 +41,6 @@ from stereo_depth.messages import (
     pack_rgb,
 )
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.scenes import load_scene
 
 from conftest import EUROC, SCENES, read_image
 

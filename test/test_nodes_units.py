@@ -8,6 +8,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import rclpy
@@ -20,7 +21,8 @@ from ros_helpers import wait_until
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.frames import OutputOptions
-from stereo_depth.ros.diagnostics import RateMonitor
+from stereo_depth.ros import problems
+from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.stereo_io import LatestWorker
@@ -181,3 +183,42 @@ def test_rviz_and_foxglove_views_show_what_stereo_node_publishes_in_the_bundled_
     assert rviz_topics == foxglove_topics == shown and shown <= {f"/stereo/{name}" for name in OUTPUT_TYPES}
     frame = read_messages(BAGS / "middlebury", ["/stereo/left/camera_info"])["/stereo/left/camera_info"][0]
     assert rviz["Global Options"]["Fixed Frame"] == foxglove["3D!cloud"]["followTf"] == frame.header.frame_id
+
+
+class FakeLogger:
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def warning(self, line: str) -> None:
+        self.lines.append(("warning", line))
+
+    def info(self, line: str) -> None:
+        self.lines.append(("info", line))
+
+
+def test_problem_log_gives_one_line_per_kind_and_period_then_counts_the_rest(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A flood of one bad input: one line, then one per period saying how many were left out; another
+    kind of problem is logged at once. Every refused frame still reaches diagnostics' last error."""
+    now = [100.0]
+    monkeypatch.setattr(problems, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    logger, diagnostics = FakeLogger(), NodeDiagnostics("/n", ["/n/left/image_raw"])
+    log = problems.ProblemLog(logger, diagnostics, period_s=5.0)
+    for i in range(50):  # 50 frames in 4.9 s; the numbers in the text do not make a new kind
+        now[0] = 100.0 + i * 0.1
+        log.skipped(f"/n/left/image_raw: image data has {1000 + i} bytes but step x height = 2000")
+    assert logger.lines == [("warning", "/n/left/image_raw: image data has 1000 bytes but step x height = 2000")]
+    assert diagnostics.last_error.startswith("/n/left/image_raw: image data has 1049 bytes")
+    log.skipped("/n/right/camera_info: K has no focal length")  # another kind: not held back
+    assert logger.lines[-1] == ("warning", "/n/right/camera_info: K has no focal length")
+    now[0] = 105.0  # one period after the first line
+    log.skipped("/n/left/image_raw: image data has 7 bytes but step x height = 2000")
+    assert logger.lines[-1] == (
+        "warning",
+        "/n/left/image_raw: image data has 7 bytes but step x height = 2000 (49 more like it since the last report)",
+    )
+    now[0] = 105.1
+    log.info("calibration changed", kind="calibration 1")
+    log.info("calibration changed", kind="calibration 2")  # same text, told apart by kind
+    log.info("calibration changed", kind="calibration 1")
+    assert [line for level, line in logger.lines if level == "info"] == ["calibration changed"] * 2
+    assert len(logger.lines) == 5

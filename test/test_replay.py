@@ -14,13 +14,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ros_helpers import TIMEOUT_S, NodeProcess, RosHarness, stop_all, wait_until
-from sensor_msgs.msg import Image
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.bag.process import process_bag
 from stereo_depth.bag.reader import read_messages
+from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
+from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.messages import disparity_from_msg, stamp_to_ns
+
+from conftest import EUROC
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 NS = "/stereo"
@@ -70,6 +75,37 @@ def test_replay_sends_every_message_unchanged_with_remaps(ros: RosHarness, ros_e
             assert stamp_to_ns(got.header.stamp) == stamp_to_ns(sent.header.stamp)
             assert (got.encoding, got.width, got.height) == (sent.encoding, sent.width, sent.height)
             assert bytes(got.data) == sent.data.tobytes()
+
+
+def test_replay_plays_a_ros1_bag_as_ros2_messages_with_its_clock(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """Jazzy's ros2 bag play cannot read ROS 1 bags; replay sends their messages as Jazzy's, and /clock."""
+    bag = tmp_path / "euroc.bag"
+    assert main(["make-bag", str(EUROC), str(bag), "--storage", "rosbag1"]) == 0
+    topics = [f"{NS}/left/image_raw", f"{NS}/left/camera_info"]
+    images, infos = ros.collector(Image, topics[0]), ros.collector(CameraInfo, topics[1])
+    clock = ros.collector(Clock, "/clock")
+    result = replay(bag, ros_env, "--rate", "4", "--topics", *topics, "--clock", "100")
+    assert result.returncode == 0, result.stderr
+    expected = read_messages(BAGS / "euroc_raw", topics)  # the same frames as a ROS 2 bag
+    wait_until(lambda: len(images.messages) >= 6 and len(infos.messages) >= 6, "every image and camera_info")
+    for got, sent in zip(images.messages, expected[topics[0]], strict=True):
+        assert stamp_to_ns(got.header.stamp) == stamp_to_ns(sent.header.stamp)
+        assert (got.encoding, got.width, got.height, bytes(got.data)) == (
+            sent.encoding,
+            sent.width,
+            sent.height,
+            sent.data.tobytes(),
+        )
+    calibration, _ = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
+    for got in infos.messages:
+        np.testing.assert_array_equal(np.asarray(got.p), calibration.p.ravel())
+        np.testing.assert_array_equal(np.asarray(got.d), calibration.d)
+    stamps = [stamp_to_ns(m.header.stamp) for m in images.messages]
+    wait_until(lambda: clock.messages and stamp_to_ns(clock.messages[-1].clock) == stamps[-1], "/clock at the end")
+    times = [stamp_to_ns(m.clock) for m in clock.messages]
+    assert times == sorted(times) and stamps[0] <= times[0] and len(times) > len(stamps)
 
 
 def test_replay_refuses_a_bad_remap_and_a_missing_topic(ros_env: dict[str, str]) -> None:

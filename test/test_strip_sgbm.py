@@ -12,8 +12,8 @@ import pytest
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import STRIP_OVERLAP, OpenCVMatcher, StripSGBM, create_matcher, opencv_sgbm
 from stereo_depth.core.params import make_params
-from stereo_depth.euroc import stereo_camera_infos
-from stereo_depth.scenes import load_scene
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import load_scene
 
 from conftest import EUROC, SCENES, read_image
 

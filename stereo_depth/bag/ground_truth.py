@@ -18,7 +18,7 @@ import yaml
 
 from stereo_depth.atomic_output import AtomicFolder
 from stereo_depth.errors import BagError
-from stereo_depth.scenes import read_ground_truth
+from stereo_depth.formats.scenes import read_ground_truth
 
 GT_SCALE = 64  # 1/64 px steps, disparities up to 1023 px
 INDEX = "index.yaml"

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy
+from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
@@ -43,6 +43,7 @@ from stereo_depth.messages import MessageTypes
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
+    topics: TopicChoice | None = None  # --left/--right/--camera-info (its namespace wins over the one above)
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
@@ -184,7 +185,7 @@ def process_bag(
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
-        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync) as reader,
+        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics) as reader,
         BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite, compress=options.compress) as writer,
     ):
         topics = reader.topics
@@ -192,7 +193,7 @@ def process_bag(
         state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for frame in reader.frames():
             try:
-                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.names)
+                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
                 messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1

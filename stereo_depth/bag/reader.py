@@ -1,8 +1,12 @@
-"""Stereo frames out of a rosbag2 (MCAP or sqlite3), paired with the live node's sync rules.
+"""Stereo frames out of a recording (ROS 1 bag, or rosbag2 MCAP / sqlite3), paired with the live node's
+sync rules.
 
-The stereo topics are found by their suffixes (`left/image_raw`, `left/camera_info`, `right/image_raw`,
-`right/camera_info`, or the `image_rect` variants) so that a bag recorded under any namespace works
-without naming four topics; a namespace is only needed when the bag holds several stereo sets.
+The stereo pair is found by the names cameras use in the wild: `left`/`right`, `cam0`/`cam1`,
+`infra1`/`infra2` (RealSense IR), `zed_node/left|right`, with images named `image_raw`, `image_rect`,
+`image_rect_color` and the like, as sensor_msgs/Image or image_transport's `/compressed`
+sensor_msgs/CompressedImage, each with its `camera_info` beside it. So a bag recorded under any
+namespace works without naming topics; `--left/--right` name them when the conventions do not fit, and
+a calibration file replaces camera_info topics that are missing or wrong.
 Messages go through `sync.Synchronizer` in the order they were recorded, as they would arrive live.
 """
 
@@ -14,32 +18,66 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal
 
-from rosbags.rosbag2 import Reader, ReaderError
-
-from stereo_depth.bag.types import deserialize
+from stereo_depth.bag.recording import open_reader
+from stereo_depth.bag.types import deserialize, rosbags_types
+from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import BagError
-from stereo_depth.messages import stamp_to_ns
+from stereo_depth.messages import camera_info_to_msg, stamp_to_ns
 from stereo_depth.sync import SyncCounters, Synchronizer
 
 ROLES = ("left_image", "left_info", "right_image", "right_info")
-SUFFIXES = {
-    "image_raw": ("left/image_raw", "left/camera_info", "right/image_raw", "right/camera_info"),
-    "image_rect": ("left/image_rect", "left/camera_info", "right/image_rect", "right/camera_info"),
-}
 NO_LIMIT_NS = 1 << 62
 IMAGE_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+# (left, right) name pieces, in the order they are tried
+SIDES = (("left", "right"), ("cam0", "cam1"), ("infra1", "infra2"))
+RAW_IMAGES = ("image_raw", "image_color", "image_mono", "image_rect_raw", "image")
+RECTIFIED_IMAGES = ("image_rect", "image_rect_color")
+COMPRESSED = "/compressed"
 
 
 @dataclass(frozen=True)
 class StereoTopics:
     namespace: str  # "" or "/ns", without a trailing slash
-    names: tuple[str, str, str, str]  # in ROLES order
+    names: tuple[str, str | None, str, str | None]  # in ROLES order; no camera_info topics with a calibration file
     rectified: bool
 
     def output(self, name: str) -> str:
         """An output topic under the same namespace as the input (e.g. /stereo/disparity)."""
         return f"{self.namespace}/{name}"
+
+    @property
+    def images(self) -> tuple[str, str]:
+        return self.names[0], self.names[2]
+
+    @property
+    def input_names(self) -> tuple[str, str, str, str]:
+        """What errors call each of the four inputs: its topic, or the calibration file that replaces it."""
+        left_image, left_info, right_image, right_info = self.names
+        return left_image, left_info or "left --camera-info", right_image, right_info or "right --camera-info"
+
+    def describe(self) -> str:
+        return " + ".join(n for n in self.names if n is not None)
+
+
+@dataclass(frozen=True)
+class TopicChoice:
+    """What the user chose: a namespace, explicit topics, a calibration that replaces camera_info."""
+
+    namespace: str | None = None
+    left: str | None = None
+    right: str | None = None
+    left_info: str | None = None
+    right_info: str | None = None
+    calibration: tuple[CameraInfo, CameraInfo] | None = None
+    need_info: bool = True  # False: only the images are read (calibrate)
+
+    @property
+    def reads_info(self) -> bool:
+        """Whether the bag's camera_info topics are read (not replaced by a file, and needed at all)."""
+        return self.calibration is None and self.need_info
 
 
 @dataclass(frozen=True)
@@ -58,7 +96,7 @@ class SyncPolicy:
 
 @dataclass
 class StereoMessages:
-    """One matched set of the four inputs, as deserialized messages."""
+    """One matched set of the four inputs, as deserialized messages (Image or CompressedImage)."""
 
     stamp_ns: int
     left_image: Any
@@ -71,56 +109,146 @@ def _normalise(namespace: str) -> str:
     return "/" + namespace.strip("/") if namespace.strip("/") else ""
 
 
-def _sets(topics: dict[str, str]) -> list[StereoTopics]:
-    """Every (namespace, raw|rect) for which the bag has all four topics with the right types."""
+def _image_name(topic: str) -> str:
+    """The image's own name: the last segment, before image_transport's /compressed."""
+    return topic.removesuffix(COMPRESSED).rsplit("/", 1)[-1]
+
+
+def info_topic(image_topic: str) -> str:
+    """The camera_info beside an image topic, as image_transport pairs them."""
+    return image_topic.removesuffix(COMPRESSED).rsplit("/", 1)[0] + "/camera_info"
+
+
+def _partner(topic: str, left: str, right: str) -> tuple[str, str] | None:
+    """(namespace, right topic) when `topic` names a left camera by `left`, else None."""
+    segments = topic.split("/")
+    for index in range(len(segments) - 2, 0, -1):  # the camera's folder, nearest the image first
+        if left in segments[index]:
+            namespace = "/".join(segments[:index])
+            swapped = segments[index][::-1].replace(left[::-1], right[::-1], 1)[::-1]
+            return namespace, "/".join([*segments[:index], swapped, *segments[index + 1 :]])
+    return None
+
+
+def _kind(topic: str) -> tuple[bool, bool]:
+    """(rectified, compressed); preference: raw before rectified, Image before CompressedImage."""
+    return _image_name(topic) in RECTIFIED_IMAGES, topic.endswith(COMPRESSED)
+
+
+def stereo_sets(topics: dict[str, str], with_info: bool = True) -> list[StereoTopics]:
+    """Every left/right image pair the conventions find, with camera_info beside each when `with_info`."""
     found = []
-    for variant, suffixes in SUFFIXES.items():
-        for name in topics:
-            if not name.endswith("/" + suffixes[0]):
+    for topic, msgtype in sorted(topics.items()):
+        if msgtype not in IMAGE_TYPES or _image_name(topic) not in RAW_IMAGES + RECTIFIED_IMAGES:
+            continue
+        for left, right in SIDES:
+            pair = _partner(topic, left, right)
+            if pair is None or topics.get(pair[1]) not in IMAGE_TYPES:
                 continue
-            namespace = name[: -len(suffixes[0]) - 1]
-            names = tuple(f"{namespace}/{suffix}" for suffix in suffixes)
-            wanted = (IMAGE_TYPE, INFO_TYPE, IMAGE_TYPE, INFO_TYPE)
-            if all(topics.get(n) == t for n, t in zip(names, wanted, strict=True)):
-                found.append(StereoTopics(namespace, names, variant == "image_rect"))  # type: ignore[arg-type]
+            infos = (info_topic(topic), info_topic(pair[1]))
+            if with_info and not all(topics.get(i) == INFO_TYPE for i in infos):
+                continue
+            names = (topic, infos[0] if with_info else None, pair[1], infos[1] if with_info else None)
+            found.append(StereoTopics(_normalise(pair[0]), names, _kind(topic)[0]))
+            break
     return found
 
 
 def _wrong_types(topics: dict[str, str]) -> str:
-    """'; but X is T, not Image' for stereo-named topics of another type (compressed images, mostly)."""
-    expected = {suffix: IMAGE_TYPE if "image" in suffix else INFO_TYPE for s in SUFFIXES.values() for suffix in s}
+    """'; but X is T, not Image' for image- or camera_info-named topics of another type."""
     wrong = [
-        f"{name} is {kind}, not {want}"
+        f"{name} is {kind}, not {' or '.join(IMAGE_TYPES)}"
         for name, kind in sorted(topics.items())
-        for suffix, want in expected.items()
-        if name.endswith("/" + suffix) and kind != want
+        if _image_name(name) in RAW_IMAGES + RECTIFIED_IMAGES and kind not in IMAGE_TYPES
     ]
-    if not wrong:
-        return ""
-    return f"; but {'; '.join(wrong)} (decompress compressed images first, e.g. image_transport republish)"
+    wrong += [
+        f"{name} is {kind}, not {INFO_TYPE}"
+        for name, kind in sorted(topics.items())
+        if name.endswith("/camera_info") and kind != INFO_TYPE
+    ]
+    return f"; but {'; '.join(wrong)}" if wrong else ""
 
 
-def find_stereo_topics(topics: dict[str, str], namespace: str | None = None) -> StereoTopics:
-    """The stereo set in a bag's {topic: msgtype}; raw images win over rectified ones in one namespace."""
-    candidates = _sets(topics)
+def find_stereo_topics(topics: dict[str, str], namespace: str | None = None, with_info: bool = True) -> StereoTopics:
+    """The stereo set in a bag's {topic: msgtype}. In one namespace raw images win over rectified ones
+    and Image over CompressedImage (lossless first); several namespaces need a choice."""
+    candidates = stereo_sets(topics, with_info)
     if namespace is not None:
         candidates = [c for c in candidates if c.namespace == _normalise(namespace)]
-    namespaces = sorted({c.namespace or "/" for c in candidates})
+    if not candidates and with_info and (images_only := find_images_without_info(topics, namespace)):
+        msg = (
+            f"the bag has the stereo images {images_only.describe()} but no camera_info beside them "
+            f"({info_topic(images_only.names[0])}, {info_topic(images_only.names[2])}); pass the calibration with "
+            "--camera-info FILE_OR_DIR (Kalibr camchain.yaml, left.yaml + right.yaml, or a EuRoC folder), or name "
+            f"the camera_info topics with --left-info and --right-info{_wrong_types(topics)}"
+        )
+        raise BagError(msg)
     if not candidates:
         where = f" under namespace '{_normalise(namespace) or '/'}'" if namespace is not None else ""
+        needs = "" if not with_info else " with camera_info beside each (or pass --camera-info FILE_OR_DIR)"
         msg = (
-            f"the bag has no complete stereo topic set{where} (…/left/image_raw, …/left/camera_info, "
-            f"…/right/image_raw, …/right/camera_info, or image_rect); "
-            f"it has: {', '.join(sorted(topics)) or 'no topics'}{_wrong_types(topics)}"
+            f"the bag has no complete stereo topic set{where}: left and right images (left/right, cam0/cam1, "
+            f"infra1/infra2; image_raw, image_rect, image_rect_color or their /compressed){needs}; "
+            f"it has: {', '.join(sorted(topics)) or 'no topics'}{_wrong_types(topics)}; "
+            "name them with --left and --right"
         )
         raise BagError(msg)
+    namespaces = sorted({c.namespace for c in candidates})
     if len(namespaces) > 1:
+        sets = "; ".join(
+            f"{ns or '/'}: {min((c for c in candidates if c.namespace == ns), key=_rank).describe()}"
+            for ns in namespaces
+        )
         msg = (
-            f"the bag holds stereo topics under several namespaces ({', '.join(namespaces)}); "
-            "choose one with --namespace"
+            f"the bag holds stereo topics under several namespaces ({', '.join(ns or '/' for ns in namespaces)}); "
+            f"choose one with --namespace, or name the images with --left and --right. Sets found: {sets}"
         )
         raise BagError(msg)
-    return min(candidates, key=lambda c: c.rectified)
+    return min(candidates, key=_rank)
+
+
+def find_images_without_info(topics: dict[str, str], namespace: str | None) -> StereoTopics | None:
+    """The image pair the bag would give if it had camera_info (for the error that asks for a file)."""
+    try:
+        return find_stereo_topics(topics, namespace, with_info=False)
+    except BagError:
+        return None
+
+
+def _rank(candidate: StereoTopics) -> tuple[bool, bool]:
+    return _kind(candidate.names[0])
+
+
+def chosen_topics(topics: dict[str, str], choice: TopicChoice) -> StereoTopics:
+    """The set the user named (--left/--right), else the one the conventions find."""
+    with_info = choice.reads_info
+    if choice.left is None and choice.right is None:
+        return find_stereo_topics(topics, choice.namespace, with_info)
+    if choice.left is None or choice.right is None:
+        msg = "--left and --right go together: name both image topics"
+        raise BagError(msg)
+    left_info = (choice.left_info or info_topic(choice.left)) if with_info else None
+    right_info = (choice.right_info or info_topic(choice.right)) if with_info else None
+    wanted: dict[str, tuple[str, ...]] = {choice.left: IMAGE_TYPES, choice.right: IMAGE_TYPES}
+    for info in (left_info, right_info):
+        if info is not None:
+            wanted[info] = (INFO_TYPE,)
+    for name, types in wanted.items():
+        if topics.get(name) not in types:
+            found = f"is {topics[name]}" if name in topics else "is not in the bag"
+            hint = " (or pass --camera-info FILE_OR_DIR)" if types == (INFO_TYPE,) else ""
+            msg = f"{name} {found}; expected {' or '.join(types)}{hint}; the bag has: {', '.join(sorted(topics))}"
+            raise BagError(msg)
+    common = []
+    for a, b in zip(choice.left.split("/")[:-1], choice.right.split("/")[:-1], strict=False):
+        if a != b:
+            break
+        common.append(a)
+    return StereoTopics(
+        _normalise("/".join(common)),
+        (choice.left, left_info, choice.right, right_info),
+        _kind(choice.left)[0],
+    )
 
 
 @dataclass
@@ -137,12 +265,20 @@ class ReadStats:
 class StereoBagReader:
     """Open a bag, find its stereo topics and yield matched sets; use as a context manager."""
 
-    def __init__(self, path: Path | str, *, namespace: str | None = None, sync: SyncPolicy | None = None) -> None:
+    def __init__(
+        self,
+        path: Path | str,
+        *,
+        namespace: str | None = None,
+        sync: SyncPolicy | None = None,
+        choice: TopicChoice | None = None,
+    ) -> None:
         self.path = Path(path)
         self.policy = sync or SyncPolicy()
+        self.choice = choice or TopicChoice(namespace=namespace)
         self._reader = open_reader(self.path)
         try:
-            self.topics = find_stereo_topics(self.topic_types(), namespace)
+            self.topics = chosen_topics(self.topic_types(), self.choice)
         except BagError:
             self._reader.close()
             raise
@@ -164,24 +300,41 @@ class StereoBagReader:
         return False
 
     def frames(self) -> Iterator[StereoMessages]:
-        """Matched sets in recording order; counts in `stats` what could not be paired."""
-        sync = Synchronizer(len(ROLES), self.policy.queue_size, self.policy.approximate, self.policy.tolerance_ns)
+        """Matched sets in recording order; counts in `stats` what could not be paired. With a
+        calibration file only the two images are paired, and each gets that calibration as its
+        camera_info (stamped like the image), so what follows cannot tell the two apart; without
+        camera_info at all (need_info False) the infos are None."""
+        inputs = [name for name in self.topics.names if name is not None]
+        sync = Synchronizer(len(inputs), self.policy.queue_size, self.policy.approximate, self.policy.tolerance_ns)
         self.stats.sync = sync.counters
-        role_of = {name: i for i, name in enumerate(self.topics.names)}
-        for topic, message in self._messages(list(role_of)):
+        role_of = {name: i for i, name in enumerate(inputs)}
+        for topic, message in self._messages(inputs):
             role = role_of[topic]
-            self._count_input(role)
+            self._count_input(topic)
             for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
                 self.stats.matched += 1
-                yield StereoMessages(stamp, *msgs)
+                yield StereoMessages(stamp, *self._four(msgs))
         self.stats.unmatched_at_end = sync.pending()
+
+    def _four(self, messages: tuple[Any, ...]) -> tuple[Any, Any, Any, Any]:
+        calibration = self.choice.calibration
+        if self.choice.reads_info:
+            left_image, left_info, right_image, right_info = messages
+            return left_image, left_info, right_image, right_info
+        left_image, right_image = messages
+        if calibration is None:
+            return left_image, None, right_image, None
+        types = rosbags_types()
+        left_info = camera_info_to_msg(types, left_image.header, calibration[0])
+        right_info = camera_info_to_msg(types, right_image.header, calibration[1])
+        return left_image, left_info, right_image, right_info
 
     def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
         """(topic, message) in recording order. Damage found while reading (a cut-off file, a corrupt
         compressed chunk or database page, undecodable CDR) becomes one BagError naming the file,
         whichever library noticed it: rosbags, zstd, apsw and the CDR decoder each raise their own."""
         connections = [c for c in self._reader.connections if c.topic in topics]
-        messages = self._reader.messages(connections=connections)
+        messages = self._reader.messages(connections)
         while True:
             try:
                 item = next(messages, None)
@@ -192,36 +345,16 @@ class StereoBagReader:
             except Exception as exc:
                 msg = (
                     f"{self.path}: cannot read messages ({type(exc).__name__}: {exc}); the bag is truncated or "
-                    "damaged: record it again, or repair a copy (mcap recover, ros2 bag reindex)"
+                    "damaged: record it again, or repair a copy (mcap recover, ros2 bag reindex, rosbag reindex)"
                 )
                 raise BagError(msg) from exc
             yield connection.topic, message
 
-    def _count_input(self, role: int) -> None:
-        if role == 0:
+    def _count_input(self, topic: str) -> None:
+        if topic == self.topics.names[0]:
             self.stats.left_images += 1
-        elif role == 2:
+        elif topic == self.topics.names[2]:
             self.stats.right_images += 1
-
-
-def open_reader(path: Path) -> Reader:
-    """A rosbags Reader, or a BagError that says what to pass instead."""
-    if path.is_file() and path.suffix in (".mcap", ".db3"):
-        msg = f"{path} is a storage file; pass its bag folder (the one with metadata.yaml): {path.parent}"
-        raise BagError(msg)
-    if not path.exists():
-        msg = f"{path} does not exist; pass a rosbag2 folder (with metadata.yaml)"
-        raise BagError(msg)
-    try:
-        reader = Reader(path)
-        reader.open()
-    except (ReaderError, OSError) as exc:
-        msg = (
-            f"{path}: not a readable rosbag2 ({exc}); pass a folder made by ros2 bag record or stereo-depth "
-            "make-bag (a recording cut short may be repaired on a copy with mcap recover or ros2 bag reindex)"
-        )
-        raise BagError(msg) from exc
-    return reader
 
 
 def read_messages(path: Path | str, topics: list[str]) -> dict[str, list[Any]]:
@@ -235,7 +368,7 @@ def read_messages(path: Path | str, topics: list[str]) -> dict[str, list[Any]]:
             raise BagError(msg)
         out: dict[str, list[Any]] = {t: [] for t in topics}
         connections = [c for c in reader.connections if c.topic in out]
-        for connection, _, raw in reader.messages(connections=connections):
+        for connection, _, raw in reader.messages(connections):
             out[connection.topic].append(deserialize(raw, connection.msgtype))
         return out
     finally:

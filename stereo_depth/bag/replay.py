@@ -1,20 +1,23 @@
 """Publish a bag over DDS with its original timing, as `ros2 bag play` would, without a ROS install.
 
 Messages go out as the CDR bytes stored in the bag (rclpy publishes `bytes` as they are), so nothing
-is deserialized on the way. rclpy is imported inside the functions: the rest of bag/ must work where
-only rosbags is installed.
+is deserialized on the way; a ROS 1 bag's messages are turned into Jazzy's CDR first (bag/recording.py),
+which Jazzy's `ros2 bag play` cannot do at all. Compressed image topics go out as they are. `clock`
+publishes the bag's time on /clock, as `ros2 bag play --clock`, for nodes run with use_sim_time.
+rclpy is imported inside the functions: the rest of bag/ must work where only rosbags is installed.
 """
 
 from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from stereo_depth.bag.reader import open_reader
+from stereo_depth.bag.recording import open_reader
 from stereo_depth.errors import BagError
 
 QOS_DEPTH = 10
@@ -28,6 +31,7 @@ class ReplayOptions:
     remaps: list[str] = field(default_factory=list)  # ROS remapping rules, from:=to
     wait_for_subscribers: int = 0  # on every published topic, before the first message
     wait_timeout: float = 10.0  # seconds
+    clock_hz: float = 0.0  # > 0: publish the bag's time on /clock this often (and before every message)
 
 
 def message_class(msgtype: str) -> Any:
@@ -80,6 +84,9 @@ def replay(path: Path | str, options: ReplayOptions | None = None) -> int:
     if not options.rate > 0:
         msg = f"--rate {options.rate} must be positive"
         raise BagError(msg)
+    if options.clock_hz < 0:
+        msg = f"--clock {options.clock_hz} must be a positive rate in Hz"
+        raise BagError(msg)
     check_remaps(options.remaps)
     path = Path(path)
     wanted = set(options.topics) if options.topics else None
@@ -90,11 +97,12 @@ def replay(path: Path | str, options: ReplayOptions | None = None) -> int:
     node = rclpy.create_node("stereo_depth_replay", context=context)
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     publishers = {topic: node.create_publisher(message_class(t), topic, qos) for topic, t in topic_types}
+    clock = SimClock(node, options.clock_hz) if options.clock_hz > 0 else None
     sent = 0
     try:
         _wait_for_subscribers(publishers, options.wait_for_subscribers, options.wait_timeout)
         while True:
-            for _ in _play_once(path, wanted, publishers, options.rate):
+            for _ in _play_once(path, wanted, publishers, options.rate, clock):
                 sent += 1
             if not options.loop:
                 break
@@ -126,15 +134,51 @@ def _wait_for_subscribers(publishers: dict[str, Any], count: int, timeout: float
         time.sleep(0.02)
 
 
-def _play_once(path: Path, wanted: set[str] | None, publishers: dict[str, Any], rate: float) -> Iterator[str]:
+class SimClock:
+    """/clock (rosgraph_msgs/Clock) at the bag's time: at a steady rate while waiting for the next
+    message and right before each one, so a use_sim_time node never sees a message from its future."""
+
+    def __init__(self, node: Any, hz: float) -> None:
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+
+        self._clock_type = Clock
+        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        self._publisher = node.create_publisher(Clock, "/clock", qos)
+        self.period_s = 1.0 / hz
+
+    def publish(self, bag_ns: int) -> None:
+        from builtin_interfaces.msg import Time
+
+        sec, nanosec = divmod(int(bag_ns), 1_000_000_000)
+        self._publisher.publish(self._clock_type(clock=Time(sec=sec, nanosec=nanosec)))
+
+    def wait_until(self, deadline: float, bag_ns_at: Callable[[float], int]) -> None:
+        """Sleep until the monotonic `deadline`, publishing the bag time every period meanwhile."""
+        while (left := deadline - time.monotonic()) > 0:
+            time.sleep(min(left, self.period_s))
+            self.publish(bag_ns_at(min(time.monotonic(), deadline)))
+
+
+def _bag_time(first_ns: int, start_wall: float, rate: float, now: float) -> int:
+    return first_ns + round((now - start_wall) * rate * 1e9)
+
+
+def _play_once(
+    path: Path, wanted: set[str] | None, publishers: dict[str, Any], rate: float, clock: SimClock | None = None
+) -> Iterator[str]:
     """One pass over the bag, each message at its recorded offset from the first, divided by `rate`."""
     _, messages = _timeline(path, wanted)
     start_wall = time.monotonic()
     first: int | None = None
     for topic, timestamp, raw in messages:
-        first = timestamp if first is None else first
-        delay = start_wall + (timestamp - first) / 1e9 / rate - time.monotonic()
-        if delay > 0:
+        if first is None:
+            first = timestamp
+        deadline = start_wall + (timestamp - first) / 1e9 / rate
+        if clock is not None:
+            clock.wait_until(deadline, partial(_bag_time, first, start_wall, rate))
+            clock.publish(timestamp)
+        elif (delay := deadline - time.monotonic()) > 0:
             time.sleep(delay)
         publishers[topic].publish(raw)
         yield topic

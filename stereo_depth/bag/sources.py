@@ -5,8 +5,7 @@ Three layouts, so that KITTI, Middlebury and one's own captures can be brought i
 - scene folders (shared/data layout): `left.png`, `right.png`, `calib.txt`, optional ground truth;
   several folders become consecutive frames of one rectified stream;
 - a sequence folder: `left/` and `right/` images paired by file name, calibrated by `calib.txt`
-  (rectified), `left.yaml` + `right.yaml` (ROS camera_info YAML, as camera_calibration writes them), or
-  EuRoC `cam0_sensor.yaml` + `cam1_sensor.yaml`;
+  (rectified), or any layout `formats.calibration_files` knows (camera_info YAML, EuRoC, Kalibr);
 - a EuRoC folder: `mav0/cam0/data/*.png` with `mav0/cam0/sensor.yaml` (and cam1).
 
 Sequence images are read one pair at a time, so long captures do not have to fit in memory.
@@ -22,11 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereo_depth.camera_info_yaml import read_camera_info_yaml
 from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import BagError
-from stereo_depth.euroc import stereo_camera_infos
-from stereo_depth.scenes import Scene, load_scene, read_calib
+from stereo_depth.formats.calibration_files import find_stereo_calibration
+from stereo_depth.formats.scenes import Scene, load_scene, read_calib
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".tif", ".tiff", ".bmp")
 
@@ -105,25 +103,16 @@ def find_sequence(root: Path) -> Sequence:
         msg = f"{root}: no image appears in both {folders[0].name}/ and {folders[1].name}/ under one file name"
         raise BagError(msg)
     pairs = [(left[k], right[k]) for k in common]
-    infos = _calibration(root)
+    infos = find_stereo_calibration(root)
     calib = read_calib(root / "calib.txt") if infos is None else {}
     if infos is None and not calib:
         msg = (
             f"{root}: no calibration; add cam0_sensor.yaml + cam1_sensor.yaml (EuRoC), "
-            "left.yaml + right.yaml (ROS camera_info) or calib.txt (Middlebury, rectified)"
+            "left.yaml + right.yaml (ROS camera_info), camchain.yaml (Kalibr) or calib.txt (Middlebury, rectified)"
         )
         raise BagError(msg)
     left_info, right_info = infos if infos is not None else (None, None)
     return Sequence(pairs, left_info, right_info, calib)
-
-
-def _calibration(root: Path) -> tuple[CameraInfo, CameraInfo] | None:
-    for left, right in (("cam0_sensor.yaml", "cam1_sensor.yaml"), ("cam0/sensor.yaml", "cam1/sensor.yaml")):
-        if (root / left).exists() and (root / right).exists():
-            return stereo_camera_infos(root / left, root / right)
-    if (root / "left.yaml").exists() and (root / "right.yaml").exists():
-        return read_camera_info_yaml(root / "left.yaml"), read_camera_info_yaml(root / "right.yaml")
-    return None
 
 
 def _read_image(path: Path) -> np.ndarray:

@@ -29,6 +29,7 @@ def rosbags_types() -> MessageTypes:
         Header=types["std_msgs/msg/Header"],
         Time=types["builtin_interfaces/msg/Time"],
         Image=types["sensor_msgs/msg/Image"],
+        CompressedImage=types["sensor_msgs/msg/CompressedImage"],
         CameraInfo=types["sensor_msgs/msg/CameraInfo"],
         RegionOfInterest=types["sensor_msgs/msg/RegionOfInterest"],
         DisparityImage=types["stereo_msgs/msg/DisparityImage"],

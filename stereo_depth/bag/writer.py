@@ -12,7 +12,10 @@ from types import TracebackType
 from typing import Any, Literal
 
 from rosbags.interfaces import Connection
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.rosbag1 import WriterError as Ros1WriterError
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
+from rosbags.typesys import Stores, get_typestore
 
 from stereo_depth.atomic_output import AtomicFolder, check_output
 from stereo_depth.bag.types import serialize, typestore
@@ -21,6 +24,7 @@ from stereo_depth.errors import BagError
 __all__ = ["STORAGES", "BagWriter", "check_output"]
 
 STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+ROS1 = "rosbag1"  # a ROS 1 .bag file, for make-bag (tests and users who need one); results stay rosbag2
 BAG_VERSION: Literal[9] = 9  # what Jazzy's rosbag2 writes
 
 
@@ -30,41 +34,52 @@ class BagWriter:
     def __init__(
         self, path: Path | str, *, storage: str = "mcap", overwrite: bool = False, compress: bool = True
     ) -> None:
-        if storage not in STORAGES:
-            msg = f"storage '{storage}' is unknown; choose one of {sorted(STORAGES)}"
+        if storage not in STORAGES and storage != ROS1:
+            msg = f"storage '{storage}' is unknown; choose one of {sorted([*STORAGES, ROS1])}"
             raise BagError(msg)
         self.path = Path(path)
         self.storage = storage
         self.overwrite = overwrite
         self.compress = compress and storage == "mcap"  # zstd chunks; ros2 bag play reads them natively
         self._folder: AtomicFolder | None = None
-        self._writer: Writer | None = None
+        self._writer: Writer | Ros1Writer | None = None
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> BagWriter:
-        self._folder = AtomicFolder(self.path, overwrite=self.overwrite)
+        self._folder = AtomicFolder(self.path, overwrite=self.overwrite, is_file=self.storage == ROS1)
         staging = self._folder.__enter__()
-        writer = Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
-        if self.compress:
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        writer = self._new_writer(staging)
         try:
             writer.open()
-        except WriterError as exc:
+        except (WriterError, Ros1WriterError) as exc:
             self._folder.__exit__(type(exc), exc, None)
             msg = f"cannot create bag {self.path}: {exc}"
             raise BagError(msg) from exc
         self._writer = writer
         return self
 
+    def _new_writer(self, path: Path) -> Writer | Ros1Writer:
+        if self.storage == ROS1:
+            return Ros1Writer(path)
+        writer = Writer(path, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
+        if self.compress:
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        return writer
+
     def write(self, topic: str, message: Any, timestamp_ns: int) -> None:
         assert self._writer is not None, "use BagWriter as a context manager"
+        msgtype = message.__msgtype__
         connection = self._connections.get(topic)
         if connection is None:
-            connection = self._writer.add_connection(topic, message.__msgtype__, typestore=typestore())
+            store = get_typestore(Stores.ROS1_NOETIC) if isinstance(self._writer, Ros1Writer) else typestore()
+            connection = self._writer.add_connection(topic, msgtype, typestore=store)
             self._connections[topic] = connection
             self.counts[topic] = 0
-        self._writer.write(connection, timestamp_ns, serialize(message))
+        data = serialize(message)
+        if isinstance(self._writer, Ros1Writer):  # Jazzy's CDR -> ROS 1 bytes (header.seq 0)
+            data = typestore().cdr_to_ros1(data, msgtype)
+        self._writer.write(connection, timestamp_ns, data)
         self.counts[topic] += 1
 
     def __exit__(

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from stereo_depth.atomic_output import AtomicFolder
-from stereo_depth.camera_info_yaml import camera_info_to_yaml
+from stereo_depth.commands.common import add_topic_options, topic_choice
 from stereo_depth.core.calibration import (
     MIN_VIEWS,
     Board,
@@ -24,6 +25,10 @@ from stereo_depth.core.calibration import (
 )
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import CalibrationError
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml
+
+if TYPE_CHECKING:
+    from stereo_depth.bag.reader import TopicChoice
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PICTURE = "rectified.png"
@@ -36,8 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         help="calibrate a stereo pair from chessboard views into camera_info YAML files",
         description=(
             "INPUT is a folder with leftNN/rightNN images (png/jpg, paired by the rest of the name), a folder "
-            "with left/ and right/ subfolders (paired by file name), or a rosbag2 folder with <ns>/left/image_raw "
-            "and <ns>/right/image_raw. Writes DIR/left.yaml and DIR/right.yaml (load them with a driver's "
+            "with left/ and right/ subfolders (paired by file name), or a bag (rosbag2 folder or ROS 1 .bag "
+            "file) with a stereo pair of image topics (--left/--right if its names are unusual). Writes "
+            "DIR/left.yaml and DIR/right.yaml (load them with a driver's "
             f"camera_info_url), DIR/report.txt and DIR/{PICTURE}; on any error writes nothing."
         ),
     )
@@ -46,10 +52,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser.add_argument("--square", required=True, type=float, metavar="METRES", help="square edge, e.g. 0.025")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR")
     parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="fewest usable pairs (default %(default)s)")
-    parser.add_argument("--namespace", help="bag input: which stereo set to read when the bag holds several")
     parser.add_argument("--every", type=int, default=1, metavar="N", help="bag input: use every Nth frame (default 1)")
     parser.add_argument("--left-name", default="left", help="camera_name in left.yaml (default %(default)s)")
     parser.add_argument("--right-name", default="right", help="camera_name in right.yaml (default %(default)s)")
+    add_topic_options(parser, with_calibration=False)
     parser.set_defaults(run=run)
 
 
@@ -96,25 +102,33 @@ def folder_images(folder: Path) -> Iterator[ImagePair]:
         yield ImagePair(f"{left.name}/{right.name}", _read(left), _read(right))
 
 
-def bag_images(path: Path, namespace: str | None, every: int) -> Iterator[ImagePair]:
-    """Every Nth stereo frame of a bag; rosbags is imported only when a bag is read."""
+def bag_images(path: Path, choice: TopicChoice, every: int) -> Iterator[ImagePair]:
+    """Every Nth stereo frame of a bag; rosbags is imported only when a bag is read. The images only:
+    a bag being calibrated needs no camera_info."""
     from stereo_depth.bag.reader import StereoBagReader
-    from stereo_depth.messages import image_to_pipeline
+    from stereo_depth.frames import decode_image
 
-    with StereoBagReader(path, namespace=namespace) as reader:
+    with StereoBagReader(path, choice=choice) as reader:
         for index, frame in enumerate(reader.frames()):
             if index % every == 0:
-                left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
+                left, right = decode_image(frame.left_image), decode_image(frame.right_image)
                 yield ImagePair(f"stamp {frame.stamp_ns}", left, right)
 
 
 def input_images(args: argparse.Namespace) -> Iterator[ImagePair]:
+    if args.input.is_file() and args.input.suffix == ".bag":
+        return bag_images(args.input, images_only(args), args.every)
     if not args.input.is_dir():
-        msg = f"{args.input}: not a folder; pass a folder of image pairs or a rosbag2 folder"
+        msg = f"{args.input}: not a folder; pass a folder of image pairs, a rosbag2 folder or a ROS 1 .bag file"
         raise CalibrationError(msg)
     if (args.input / "metadata.yaml").is_file():
-        return bag_images(args.input, args.namespace, args.every)
+        return bag_images(args.input, images_only(args), args.every)
     return folder_images(args.input)
+
+
+def images_only(args: argparse.Namespace) -> TopicChoice:
+    """The topics to calibrate from; any camera_info in the bag is what is being replaced, so not needed."""
+    return topic_choice(args, need_info=False)
 
 
 def picture(views: Views, result: StereoCalibration) -> np.ndarray:

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stereo_depth.camera_info_yaml import read_camera_info_yaml
+from stereo_depth.commands.common import add_topic_options, topic_choice
 from stereo_depth.core.calibration_check import CalibrationCheck, Level, check_rectified_pair, verdict
-from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import CalibrationError
+
+if TYPE_CHECKING:
+    from stereo_depth.bag.reader import TopicChoice
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -18,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         "check-calibration",
         help="measure the vertical offset of feature matches after rectification, frame by frame",
         description=(
-            "Rectifies each stereo frame of IN_BAG with its camera_info (or with --camera-info DIR), matches "
+            "Rectifies each stereo frame of IN_BAG (ROS 1 or ROS 2) with its camera_info (or --camera-info), matches "
             "features between left and right and prints the median vertical offset of the RANSAC inliers. "
             "The verdict is the median over the frames that could be judged: OK below 0.5 px, WARN from "
             "0.5 px, ERROR above 1.5 px. Exit status: 0 OK, 1 WARN or a usage error, 2 ERROR, 3 no frame "
@@ -26,42 +30,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         ),
     )
     parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
-    parser.add_argument("--namespace", help="which stereo set to read when the bag holds several")
-    parser.add_argument(
-        "--camera-info",
-        type=Path,
-        metavar="DIR",
-        help="check DIR/left.yaml and DIR/right.yaml (camera_info files) instead of the bag's camera_info",
-    )
+    add_topic_options(parser)
     parser.add_argument("--every", type=int, default=1, metavar="N", help="check every Nth frame (default 1)")
     parser.set_defaults(run=run)
 
 
-def _override(folder: Path | None) -> tuple[CameraInfo, CameraInfo] | None:
-    if folder is None:
-        return None
-    return read_camera_info_yaml(folder / "left.yaml"), read_camera_info_yaml(folder / "right.yaml")
-
-
-def check_bag(
-    path: Path, namespace: str | None, infos: tuple[CameraInfo, CameraInfo] | None, every: int
-) -> list[tuple[int, CalibrationCheck]]:
+def check_bag(path: Path, choice: TopicChoice, every: int) -> list[tuple[int, CalibrationCheck]]:
     """(stamp, check) for every Nth frame, rectified the way stereo_node rectifies it."""
     from stereo_depth.bag.reader import StereoBagReader  # rosbags only when a bag is read
-    from stereo_depth.messages import camera_info_from_msg, image_to_pipeline
+    from stereo_depth.frames import decode_image
+    from stereo_depth.messages import camera_info_from_msg
 
     results = []
     camera: StereoCamera | None = None
-    with StereoBagReader(path, namespace=namespace) as reader:
+    with StereoBagReader(path, choice=choice) as reader:
         for index, frame in enumerate(reader.frames()):
             if index % every:
                 continue
-            left, right = image_to_pipeline(frame.left_image), image_to_pipeline(frame.right_image)
+            left, right = decode_image(frame.left_image), decode_image(frame.right_image)
             if not reader.topics.rectified:
-                left_info, right_info = infos or (
-                    camera_info_from_msg(frame.left_info),
-                    camera_info_from_msg(frame.right_info),
-                )
+                left_info, right_info = camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info)
                 if camera is None or camera.key() != (left_info.key(), right_info.key()):
                     camera = StereoCamera(left_info, right_info)
                 left, right = camera.rectify(left, "left"), camera.rectify(right, "right")
@@ -83,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if args.every < 1:
         msg = f"--every {args.every} must be at least 1"
         raise CalibrationError(msg)
-    results = check_bag(args.in_bag, args.namespace, _override(args.camera_info), args.every)
+    results = check_bag(args.in_bag, topic_choice(args), args.every)
     if not results:
         msg = f"{args.in_bag}: no complete stereo frame to check"
         raise CalibrationError(msg)

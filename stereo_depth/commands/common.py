@@ -1,9 +1,16 @@
-"""Options every processing command shares: --profile, --set name=value, --params FILE."""
+"""Options the commands share: --profile, --set name=value; which topics and calibration a bag gives."""
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from stereo_depth.formats.calibration_files import read_stereo_calibration
+
+if TYPE_CHECKING:
+    from stereo_depth.bag.reader import TopicChoice
 
 from stereo_depth.core.params import PROFILES, StereoParams, make_params, parse_assignments
 
@@ -24,3 +31,30 @@ def params_from_args(args: argparse.Namespace, extra: Mapping[str, object] | Non
     overrides: dict[str, object] = dict(extra or {})
     overrides.update(parse_assignments(args.assignments))
     return make_params(args.profile, overrides)
+
+
+def add_topic_options(parser: argparse.ArgumentParser, with_calibration: bool = True) -> None:
+    """For every command that reads a bag: its stereo topics and, where it has none, its calibration."""
+    parser.add_argument("--namespace", help="which stereo set to read when the bag holds several")
+    parser.add_argument("--left", metavar="TOPIC", help="left image topic (Image or CompressedImage), with --right")
+    parser.add_argument("--right", metavar="TOPIC", help="right image topic, with --left")
+    parser.add_argument("--left-info", metavar="TOPIC", help="left camera_info (default: beside --left)")
+    parser.add_argument("--right-info", metavar="TOPIC", help="right camera_info (default: beside --right)")
+    if not with_calibration:
+        return
+    parser.add_argument(
+        "--camera-info",
+        type=Path,
+        metavar="FILE_OR_DIR",
+        help="calibration instead of the bag's camera_info: a Kalibr camchain.yaml, a folder with left.yaml + "
+        "right.yaml, or a EuRoC folder (cam0/sensor.yaml + cam1/sensor.yaml)",
+    )
+
+
+def topic_choice(args: argparse.Namespace, need_info: bool = True) -> TopicChoice:
+    """What add_topic_options' flags chose; `need_info` False: the images are all the command reads."""
+    from stereo_depth.bag.reader import TopicChoice  # rosbags only when a bag is read
+
+    path = getattr(args, "camera_info", None)
+    calibration = read_stereo_calibration(path) if path is not None else None
+    return TopicChoice(args.namespace, args.left, args.right, args.left_info, args.right_info, calibration, need_info)

@@ -14,7 +14,7 @@ from stereo_depth.commands.common import add_param_options, params_from_args
 from stereo_depth.core.metrics import accuracy, comparison_picture
 from stereo_depth.core.params import parse_assignments
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.scenes import SceneError, load_scene
+from stereo_depth.formats.scenes import SceneError, load_scene
 
 COLUMNS = ("bad1", "bad2", "bad4", "bad2_est", "density", "epe", "ms")
 

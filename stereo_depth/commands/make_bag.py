@@ -10,8 +10,9 @@ from stereo_depth.bag.ground_truth import GroundTruthWriter
 from stereo_depth.bag.make import StreamLayout, parse_topic_overrides, write_stream
 from stereo_depth.bag.reader import ROLES
 from stereo_depth.bag.sources import crop, read_frames
-from stereo_depth.bag.writer import STORAGES, BagWriter, check_output
+from stereo_depth.bag.writer import ROS1, STORAGES, BagWriter, check_output
 from stereo_depth.errors import BagError
+from stereo_depth.messages import COMPRESSED_FORMATS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -45,7 +46,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser.add_argument("--right-frame-id", default="right_camera_optical_frame", help="right frame_id")
     parser.add_argument("--crop", metavar="WxH", help="keep the centre WxH of every frame (K and P follow)")
     parser.add_argument("--gt", type=Path, metavar="DIR", help="write the scenes' ground truth here, keyed by stamp")
-    parser.add_argument("--storage", choices=sorted(STORAGES), default="mcap")
+    parser.add_argument(
+        "--storage",
+        choices=sorted([*STORAGES, ROS1]),
+        default="mcap",
+        help="rosbag2 storage, or rosbag1 for a ROS 1 .bag file (OUT_BAG is then the file, e.g. out.bag)",
+    )
+    parser.add_argument(
+        "--compress-images",
+        choices=COMPRESSED_FORMATS,
+        help="write images as sensor_msgs/CompressedImage on <image topic>/compressed, as image_transport does",
+    )
+    parser.add_argument(
+        "--no-camera-info", action="store_true", help="write the images only, as EuRoC's bags (calibration in files)"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace OUT_BAG (and --gt DIR) if they exist")
     parser.set_defaults(run=run)
 
@@ -69,9 +83,14 @@ def run(args: argparse.Namespace) -> int:
         rate_hz=args.rate,
         start_ns=round(args.start * 1e9),
         overrides=parse_topic_overrides(args.topic),
+        compress_images=args.compress_images,
+        camera_info=not args.no_camera_info,
     )
+    if args.storage == ROS1 and args.out.suffix != ".bag":
+        msg = f"--storage rosbag1 writes a ROS 1 bag file: name it *.bag, not {args.out.name}"
+        raise BagError(msg)
     size = parse_size(args.crop) if args.crop else None
-    check_output(args.out, args.overwrite)
+    check_output(args.out, args.overwrite, is_file=args.storage == ROS1)
     if args.gt:
         check_output(args.gt, args.overwrite)
     frames = read_frames(args.sources)
@@ -81,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         writer = stack.enter_context(BagWriter(args.out, storage=args.storage, overwrite=args.overwrite))
         ground_truth = stack.enter_context(GroundTruthWriter(args.gt, overwrite=args.overwrite)) if args.gt else None
         count = write_stream(frames, writer, layout, ground_truth)
-    print(f"wrote {count} frames to {args.out} ({', '.join(layout.topics())})")
+    print(f"wrote {count} frames to {args.out} ({', '.join(layout.written())})")
     if args.gt:
         print(f"ground truth for the frames that have it: {args.gt}")
     return 0

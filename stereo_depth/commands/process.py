@@ -13,7 +13,7 @@ import yaml
 from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
-from stereo_depth.commands.common import add_param_options
+from stereo_depth.commands.common import add_param_options, add_topic_options, topic_choice
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
 from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
@@ -25,9 +25,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         "process",
         help="run the stereo pipeline over a recorded bag and write the results into a new bag",
         description=(
-            "Reads an MCAP or sqlite3 rosbag2, finds <ns>/left/image_raw, left/camera_info, right/image_raw, "
-            "right/camera_info (or image_rect), pairs them like stereo_node and writes <ns>/disparity, depth, "
-            "points2 and left/image_rect with the input stamps."
+            "Reads a rosbag2 (MCAP, sqlite3) or a ROS 1 .bag, finds its stereo images (left/right, cam0/cam1, "
+            "infra1/infra2; image_raw, image_rect or their /compressed) and their camera_info (or --camera-info), "
+            "pairs them like stereo_node and writes <ns>/disparity, depth, points2 and left/image_rect with the "
+            "input stamps into a new rosbag2."
         ),
     )
     parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
@@ -42,7 +43,7 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--params", type=Path, metavar="FILE", help="ROS parameter YAML (node: ros__parameters: ...); --set wins"
     )
-    parser.add_argument("--namespace", help="which stereo set to use when the bag holds several")
+    add_topic_options(parser)
     parser.add_argument(
         "--approximate-sync",
         action="store_true",
@@ -156,6 +157,7 @@ def sync_from(args: argparse.Namespace) -> SyncPolicy:
 def options_from(args: argparse.Namespace) -> ProcessOptions:
     return ProcessOptions(
         namespace=args.namespace,
+        topics=topic_choice(args),
         sync=sync_from(args),
         storage=args.storage,
         compress=args.compress,

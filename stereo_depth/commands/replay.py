@@ -12,7 +12,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser = sub.add_parser(
         "replay",
         help="publish a bag's messages over DDS with their recorded timing",
-        description="Publishes every message (raw CDR) on its recorded topic with reliable QoS, depth 10.",
+        description=(
+            "Publishes every message (raw CDR) of a rosbag2 folder or a ROS 1 .bag file on its recorded topic "
+            "with reliable QoS, depth 10; ROS 1 messages are converted to their ROS 2 Jazzy form."
+        ),
     )
     parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
     parser.add_argument(
@@ -31,6 +34,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser.add_argument(
         "--wait-timeout", type=float, default=10.0, metavar="SECONDS", help="give up waiting after this long"
     )
+    parser.add_argument(
+        "--clock",
+        type=float,
+        nargs="?",
+        const=40.0,
+        default=0.0,
+        metavar="HZ",
+        help="publish the bag's time on /clock (default 40 Hz, as ros2 bag play --clock) for use_sim_time nodes",
+    )
     parser.set_defaults(run=run)
 
 
@@ -42,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
         remaps=args.remap,
         wait_for_subscribers=args.wait_for_subscribers,
         wait_timeout=args.wait_timeout,
+        clock_hz=args.clock,
     )
     sent = replay(args.in_bag, options)
     print(f"published {sent} messages from {args.in_bag}")

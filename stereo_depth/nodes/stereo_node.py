@@ -39,6 +39,7 @@ from stereo_depth.frames import (
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.settings import CAMERA_OPTIONS
 
 OUTPUT_TYPES = {
     "left/image_rect": Image,
@@ -68,8 +69,11 @@ class StereoNode(StereoIONode):
         ("right/image_raw", Image),
         ("right/camera_info", CameraInfo),
     )
+    IMAGE_INPUTS = (0, 2)
+    CAMERA_INFO_FILES = ((1, "left_camera_info_url", 0), (3, "right_camera_info_url", 2))
     OPTIONS = (
         *INPUT_OPTIONS,
+        *CAMERA_OPTIONS,
         *CLOUD_OPTIONS,
         "depth_encoding",
         "publish_rectified",

@@ -28,6 +28,7 @@ from stereo_depth.frames import OutputOptions
 from stereo_depth.settings import (
     CLOUD_OPTIONS,
     INPUT_OPTIONS,
+    STARTUP_OPTIONS,
     NodeOptions,
     Settings,
     unknown_parameters_line,
@@ -88,7 +89,8 @@ class NodeParameters:
             self._declare_stereo()
         for name in self._option_names:
             cls = _OPTION_CLASS[name]
-            node.declare_parameter(name, getattr(cls(), name), _describe(_FIELDS[name]))
+            descriptor = _describe(_FIELDS[name], read_only=name in STARTUP_OPTIONS)
+            node.declare_parameter(name, getattr(cls(), name), descriptor)
         self.settings = self._build({})  # a bad start-up value raises ParameterError here
         self._warn_unknown()
         node.add_pre_set_parameters_callback(self._expand_aliases)
@@ -218,7 +220,7 @@ def _yaml_value(value: object) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if value == "":
-        return '""'  # a bare empty value would read back as null, not as an empty string
+        return "''"  # an empty string, not YAML's null
     return str(value)
 
 

@@ -28,13 +28,15 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CompressedImage
 
-from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
-from stereo_depth.errors import StereoDepthError
+from stereo_depth.errors import CalibrationError, StereoDepthError
+from stereo_depth.formats.camera_info_yaml import read_camera_info_url
 from stereo_depth.frames import StereoFrame, decode_frame, decode_image, frame_camera, match_frame, named
-from stereo_depth.messages import make_header, stamp_to_ns
+from stereo_depth.messages import camera_info_to_msg, make_header, stamp_to_ns
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
 from stereo_depth.ros.problems import ProblemLog
@@ -106,19 +108,27 @@ class StereoIONode(Node):
     """Base of the four nodes. A subclass names its inputs and options and implements `process`."""
 
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
+    IMAGE_INPUTS: Sequence[int] = ()  # inputs that image_transport:=compressed reads from <topic>/compressed
+    # (camera_info input, the option naming a file that replaces it, the image input it belongs to)
+    CAMERA_INFO_FILES: Sequence[tuple[int, str, int]] = ()
     OPTIONS: Sequence[str] = ()  # NodeOptions fields this node declares
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
     MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
-        self.topics = [self.resolve_topic_name(topic) for topic, _ in self.INPUTS]
-        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
-        self.problems = ProblemLog(self.get_logger(), self.diagnostics)
         self.parameters = NodeParameters(
             self, self.OPTIONS, with_stereo=self.WITH_STEREO, on_change=self._settings_changed
         )
         settings = self.parameters.settings
+        inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
+        self._info_files = camera_info_files(self.CAMERA_INFO_FILES, settings.options)
+        self.topics = [
+            self._info_files[index][0] if index in self._info_files else self.resolve_topic_name(topic)
+            for index, (topic, _) in enumerate(inputs)
+        ]
+        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
+        self.problems = ProblemLog(self.get_logger(), self.diagnostics)
         self.pipeline = StereoPipeline(settings.stereo) if settings.stereo is not None else None
         self._options = settings.options
         self._sync_lock = threading.Lock()
@@ -133,7 +143,8 @@ class StereoIONode(Node):
                 depth=settings.options.queue_size,
                 on_lost=partial(self.diagnostics.input_lost, self.topics[index]),
             )
-            for index, (topic, msg_type) in enumerate(self.INPUTS)
+            for index, (topic, msg_type) in enumerate(inputs)
+            if index not in self._info_files
         ]
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._worker = LatestWorker(
@@ -277,6 +288,9 @@ class StereoIONode(Node):
             self._time_jump(topic, stamp)
         for stamp_ns, messages in sets:
             self._worker.submit((next(self._sequence), stamp_ns, messages))
+        for info_index, (_, image_index, info) in self._info_files.items():
+            if image_index == index:  # the file's calibration, stamped as this image, takes the topic's place
+                self._on_message(info_index, camera_info_to_msg(RCLPY_TYPES, msg.header, info))
 
     def _stale_stamp(self, topic: str, stamp_ns: int) -> None:
         self.diagnostics.add_stale()
@@ -345,6 +359,36 @@ class StereoIONode(Node):
     def destroy_node(self) -> None:
         self.stop_workers()
         super().destroy_node()
+
+
+def input_specs(
+    inputs: Sequence[tuple[str, Any]], image_inputs: Sequence[int], options: NodeOptions
+) -> list[tuple[str, Any]]:
+    """The node's inputs with image_transport applied: `<topic>/compressed` as CompressedImage, the name
+    and meaning of stereo_image_proc's parameter (decoded on the worker, in frames.decode_image)."""
+    if options.image_transport != "compressed":
+        return list(inputs)
+    return [
+        (f"{topic}/compressed", CompressedImage) if i in image_inputs else (topic, kind)
+        for i, (topic, kind) in enumerate(inputs)
+    ]
+
+
+def camera_info_files(
+    files: Sequence[tuple[int, str, int]], options: NodeOptions
+) -> dict[int, tuple[str, int, CameraInfo]]:
+    """{camera_info input: (url, image input, calibration)} for each *_camera_info_url that is set; a
+    file that cannot be read stops the node at start-up with the reason (as a driver would)."""
+    out = {}
+    for index, option, image_index in files:
+        url = str(getattr(options, option))
+        if url:
+            try:
+                out[index] = (url, image_index, read_camera_info_url(url))
+            except CalibrationError as exc:
+                msg = f"{option}: {exc}"
+                raise CalibrationError(msg) from exc
+    return out
 
 
 def timed(stages: dict[str, float], name: str, start: float) -> None:

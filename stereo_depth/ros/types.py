@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOfInterest
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField, RegionOfInterest
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
@@ -13,6 +13,7 @@ RCLPY_TYPES = MessageTypes(
     Header=Header,
     Time=Time,
     Image=Image,
+    CompressedImage=CompressedImage,
     CameraInfo=CameraInfo,
     RegionOfInterest=RegionOfInterest,
     DisparityImage=DisparityImage,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote
 
 import numpy as np
 import yaml
@@ -99,3 +100,16 @@ def read_camera_info_yaml(path: Path) -> CameraInfo:
         msg = f"{path}: cannot read camera_info file ({exc.strerror})"
         raise CalibrationError(msg) from exc
     return parse_camera_info_yaml(text, str(path))
+
+
+def read_camera_info_url(url: str) -> CameraInfo:
+    """A driver's `camera_info_url` as camera_info_manager takes it: `file:///abs/path.yaml` (or a plain
+    path). package:// needs an ament index we may not have: the error says to use file://."""
+    if url.startswith("file://"):
+        path = Path(unquote(url.removeprefix("file://")))
+    elif "://" in url:
+        msg = f"camera_info_url '{url}': only file:// URLs (or plain paths) are supported; e.g. file:///path/left.yaml"
+        raise CalibrationError(msg)
+    else:
+        path = Path(url)
+    return read_camera_info_yaml(path)

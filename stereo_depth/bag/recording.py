@@ -1,0 +1,106 @@
+"""A recording on disk, ROS 1 bag or rosbag2 (MCAP, sqlite3), read as ROS 2 Jazzy CDR either way.
+
+ROS 1 bags (EuRoC, TUM-VI, KITTI via kitti2bag and most public datasets) need no ROS 1 install:
+rosbags reads them, and each message's ROS 1 bytes become the CDR bytes a Jazzy publisher would send
+(`header.seq` dropped, CameraInfo's D/K/R/P read as d/k/r/p: same wire layout). Types whose layout
+changed between ROS 1 and ROS 2 are migrated field by field, as `rosbags-convert` does. Everything after
+this module (deserialize, replay's raw publish) sees one kind of bag.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from functools import partial
+from pathlib import Path
+
+from rosbags.convert.converter import is_same_wireformat, migrate_bytes
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Connection
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.typesys.store import Typestore
+
+from stereo_depth.bag.types import typestore
+from stereo_depth.errors import BagError
+
+RawMessage = tuple[Connection, int, bytes | memoryview]  # connection, bag time (ns), Jazzy CDR
+ROS1_SUFFIX = ".bag"
+
+
+class Recording:
+    """Connections and messages of one bag; open with `open_reader`, close when done."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.is_ros1 = path.suffix == ROS1_SUFFIX
+        self._ros1: AnyReader | None = None
+        self._ros2: Reader | None = None
+        self._to_cdr: dict[str, Callable[[bytes | memoryview], bytes | memoryview]] = {}
+        if self.is_ros1:
+            self._ros1 = AnyReader([path], default_typestore=typestore())
+            self._ros1.open()
+        else:
+            self._ros2 = Reader(path)
+            self._ros2.open()
+
+    @property
+    def connections(self) -> list[Connection]:
+        reader = self._ros1 or self._ros2
+        assert reader is not None
+        return list(reader.connections)
+
+    def messages(self, connections: Sequence[Connection]) -> Iterator[RawMessage]:
+        """Messages of `connections` in recording order, as Jazzy CDR."""
+        if self._ros2 is not None:
+            yield from self._ros2.messages(connections=connections)
+            return
+        assert self._ros1 is not None
+        for connection, timestamp, raw in self._ros1.messages(connections=connections):
+            yield connection, timestamp, self._converter(connection.msgtype)(raw)
+
+    def _converter(self, msgtype: str) -> Callable[[bytes | memoryview], bytes | memoryview]:
+        """ROS 1 bytes -> Jazzy CDR for one type, chosen once per type."""
+        convert = self._to_cdr.get(msgtype)
+        if convert is None:
+            assert self._ros1 is not None
+            convert = ros1_to_jazzy(self._ros1.typestore, msgtype)
+            self._to_cdr[msgtype] = convert
+        return convert
+
+    def close(self) -> None:
+        for reader in (self._ros1, self._ros2):
+            if reader is not None:
+                reader.close()
+
+
+def ros1_to_jazzy(source_store: Typestore, msgtype: str) -> Callable[[bytes | memoryview], bytes | memoryview]:
+    """A function from a ROS 1 message's bytes (types as the bag defines them) to Jazzy's CDR."""
+    jazzy = typestore()
+    if msgtype not in jazzy.fielddefs:
+        msg = f"message type {msgtype} (ROS 1) has no ROS 2 Jazzy counterpart to read it as"
+        raise BagError(msg)
+    if is_same_wireformat(source_store, jazzy, msgtype, msgtype):
+        return partial(jazzy.ros1_to_cdr, typename=msgtype)
+    return partial(migrate_bytes, source_store, jazzy, msgtype, msgtype, {}, src_is2=False, dst_is2=True)
+
+
+def open_reader(path: Path) -> Recording:
+    """A Recording, or a BagError that says what to pass instead."""
+    if path.is_file() and path.suffix in (".mcap", ".db3"):
+        msg = f"{path} is a storage file; pass its bag folder (the one with metadata.yaml): {path.parent}"
+        raise BagError(msg)
+    if not path.exists():
+        msg = f"{path} does not exist; pass a rosbag2 folder (with metadata.yaml) or a ROS 1 .bag file"
+        raise BagError(msg)
+    try:
+        return Recording(path)
+    except (ReaderError, Ros1ReaderError, AnyReaderError, OSError) as exc:
+        if path.suffix == ROS1_SUFFIX:
+            msg = f"{path}: not a readable ROS 1 bag ({exc}); a recording cut short may be repaired with rosbag reindex"
+        else:
+            msg = (
+                f"{path}: not a readable rosbag2 ({exc}); pass a folder made by ros2 bag record or stereo-depth "
+                "make-bag, or a ROS 1 .bag file (a recording cut short may be repaired on a copy with mcap "
+                "recover or ros2 bag reindex)"
+            )
+        raise BagError(msg) from exc
