@@ -23,7 +23,7 @@ from sensor_msgs.msg import PointCloud2
 
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.euroc import stereo_camera_infos
+from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import OutputOptions, OutputState, StereoFrame, geometry_outputs, result_geometry
 from stereo_depth.messages import make_header
 from stereo_depth.ros.types import RCLPY_TYPES
