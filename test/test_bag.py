@@ -395,9 +395,12 @@ def test_process_builds_outputs_with_the_nodes_output_options(tmp_path: Path) ->
 def test_process_honours_max_image_pixels_and_names_the_topic(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["process", str(EUROC_BAG), str(tmp_path / "out"), "--set", "max_image_pixels=1000"]) == 1
-    out = capsys.readouterr().out
-    assert f"skipped 6x: {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in out
+    out = tmp_path / "out"
+    assert main(["process", str(EUROC_BAG), str(out), "--set", "max_image_pixels=1000"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("ERROR: no frame was processed from 6 left / 6 right images: 6 ")
+    assert f"skipped because {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in err
+    assert not out.exists() and leftovers(tmp_path) == []  # no empty bag
 
 
 def test_a_mask_that_cannot_be_used_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -407,7 +410,7 @@ def test_a_mask_that_cannot_be_used_is_named(tmp_path: Path, capsys: pytest.Capt
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.full((48, 75), 255, np.uint8))
     assert main(["process", str(EUROC_BAG), str(out), "--set", f"mask_image={small}"]) == 1
-    assert f"skipped 6x: mask_image {small} is 75x48 but the left camera is 752x480" in capsys.readouterr().out
+    assert f"6 skipped because mask_image {small} is 75x48 but the left camera is 752x480" in capsys.readouterr().err
 
 
 def test_misspelt_parameters_name_the_closest_known_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -23,7 +23,7 @@ from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
-from stereo_depth.errors import StereoDepthError
+from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     OUTPUTS,
@@ -74,6 +74,21 @@ class ProcessSummary:
 
     def mean_stage_ms(self) -> dict[str, float]:
         return {k: v / max(1, self.frames_out) for k, v in self.stage_ms.items()}
+
+    def why_empty(self) -> str:
+        """Why no frame came out, on one line: the commonest reason a frame was skipped, or the pairing."""
+        seen = f"{self.left_images} left / {self.right_images} right images"
+        if self.skipped:
+            reason, count = self.skipped.most_common(1)[0]
+            others = sum(self.skipped.values()) - count
+            more = f" (and {others} frames for other reasons)" if others else ""
+            return f"no frame was processed from {seen}: {count} skipped because {reason}{more}"
+        if self.unmatched:
+            return (
+                f"no frame was processed from {seen}: no set of messages had equal stamps "
+                f"({self.unmatched} unmatched); try --approximate-sync or a larger --queue-size"
+            )
+        return f"no frame was processed: the bag has {seen}"
 
     def lines(self) -> list[str]:
         out = [
@@ -213,5 +228,7 @@ def process_bag(
         stats = reader.stats
         summary.left_images, summary.right_images = stats.left_images, stats.right_images
         summary.unmatched = (stats.sync.dropped if stats.sync else 0) + stats.unmatched_at_end
+        if summary.frames_out == 0:  # raised inside the writer's block: no empty bag is left behind
+            raise BagError(summary.why_empty())
     summary.seconds = time.perf_counter() - start
     return summary
