@@ -476,9 +476,9 @@ def test_unpaired_stamps_are_reported_and_approximate_sync_pairs_them(tmp_path: 
         )
         write_stream(frames, writer, left_layout)
         write_stream(frames, writer, right_layout)
-    exact = process_bag(bag, tmp_path / "exact", make_params())
-    assert (exact.left_images, exact.frames_out) == (3, 0) and exact.unmatched == 12
-    assert any("approximate" in line for line in exact.lines())
+    with pytest.raises(BagError, match=r"from 3 left / 3 right images: no set .* \(12 unmatched\).*--approximate-sync"):
+        process_bag(bag, tmp_path / "exact", make_params())
+    assert not (tmp_path / "exact").exists()
     options = ProcessOptions(sync=SyncPolicy.from_node_parameters(True, 5, 0.005))
     assert process_bag(bag, tmp_path / "approx", make_params(), options).frames_out == 3
 
