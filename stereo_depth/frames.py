@@ -27,7 +27,6 @@ import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays
-from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import StereoParams, _spec, coerce
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
 from stereo_depth.errors import CalibrationError, ImageError, ParameterError, StereoDepthError
@@ -233,9 +232,8 @@ def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: Sequence[st
 def disparity_message(
     types: MessageTypes, header: Any, disparity: np.ndarray, camera: StereoCamera, params: StereoParams
 ) -> Any:
-    """DisparityImage with the matcher's real valid window and resolution (1/16 px per downsample step)."""
+    """DisparityImage with the frame's real valid window and resolution (1/16 px per downsample step)."""
     params = output_params(params)  # the disparity's own size and range (downsample_output)
-    height, width = disparity.shape
     return disparity_to_msg(
         types,
         header,
@@ -243,9 +241,23 @@ def disparity_message(
         camera,
         params.min_disparity,
         params.disparity_range,
-        valid_window(width, height, params),
+        valid_region(disparity),
         delta_d=params.downsample / 16.0,
     )
+
+
+def valid_region(disparity: np.ndarray) -> tuple[int, int, int, int]:
+    """(x, y, width, height) of the smallest window holding every valid disparity of this frame, for
+    DisparityImage.valid_window; (0, 0, 0, 0) when none is valid.
+
+    Not OpenCV's getValidDisparityROI: SGBM fills rows and columns outside it, census_sgm fills the left
+    border and hole filling anything, so only the frame itself says where its valid pixels are.
+    """
+    valid = np.isfinite(disparity)
+    rows, columns = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    return int(columns[0]), int(rows[0]), int(columns[-1] - columns[0] + 1), int(rows[-1] - rows[0] + 1)
 
 
 def image_outputs(
