@@ -23,12 +23,13 @@ from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
-from stereo_depth.errors import StereoDepthError
+from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     OUTPUTS,
     Geometry,
     OutputOptions,
+    OutputState,
     StereoFrame,
     decode_frame,
     geometry_outputs,
@@ -36,7 +37,7 @@ from stereo_depth.frames import (
     match_frame,
     result_geometry,
 )
-from stereo_depth.messages import CloudBuffer, MessageTypes
+from stereo_depth.messages import MessageTypes
 
 
 @dataclass
@@ -78,6 +79,21 @@ class ProcessSummary:
     def mean_stage_ms(self) -> dict[str, float]:
         return {k: v / max(1, self.frames_out) for k, v in self.stage_ms.items()}
 
+    def why_empty(self) -> str:
+        """Why no frame came out, on one line: the commonest reason a frame was skipped, or the pairing."""
+        seen = f"{self.left_images} left / {self.right_images} right images"
+        if self.skipped:
+            reason, count = self.skipped.most_common(1)[0]
+            others = sum(self.skipped.values()) - count
+            more = f" (and {others} frames for other reasons)" if others else ""
+            return f"no frame was processed from {seen}: {count} skipped because {reason}{more}"
+        if self.unmatched:
+            return (
+                f"no frame was processed from {seen}: no set of messages had equal stamps "
+                f"({self.unmatched} unmatched); try --approximate-sync or a larger --queue-size"
+            )
+        return f"no frame was processed: the bag has {seen}"
+
     def lines(self) -> list[str]:
         out = [
             f"frames in: {self.left_images} left / {self.right_images} right images; "
@@ -110,16 +126,17 @@ def frame_outputs(
     frame: StereoFrame,
     result: StereoResult,
     options: ProcessOptions,
-    cloud_buffer: CloudBuffer | None = None,
+    state: OutputState,
 ) -> tuple[dict[str, Any], Geometry | None]:
     """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
     the geometry they were built from (None when no depth output or PLY was asked for)."""
     messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
     wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
+    wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
     if not wanted and options.ply_dir is None:
         return messages, None
-    geometry = result_geometry(pipeline, result)
-    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, cloud_buffer))
+    geometry = result_geometry(pipeline, frame, result)
+    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, state))
     return messages, geometry
 
 
@@ -200,11 +217,11 @@ def process_bag(
     ):
         topics = reader.topics
         progress = Progress(reader.count(topics.names[0]), options.progress)
-        cloud_buffer = CloudBuffer()  # the writer serializes each message before the next frame reuses it
+        state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for frame in reader.frames():
             try:
                 decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
-                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, cloud_buffer)
+                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
@@ -223,5 +240,7 @@ def process_bag(
         stats = summary.read = reader.stats
         summary.left_images, summary.right_images = stats.left_images, stats.right_images
         summary.unmatched = (stats.sync.dropped if stats.sync else 0) + stats.unmatched_at_end
+        if summary.frames_out == 0 and options.window is None:  # a shard may own no frame; a bag must
+            raise BagError(summary.why_empty())  # inside the writer's block: no empty bag is left behind
     summary.seconds = time.perf_counter() - start
     return summary

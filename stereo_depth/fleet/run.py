@@ -139,9 +139,7 @@ class FleetRun:
         try:
             if errors:
                 raise BagError(errors[0])
-            if plan.report.frames_out == 0:
-                if plan.parts_dir is None:
-                    shutil.rmtree(plan.bag.output, ignore_errors=True)  # complete but empty: a rerun must redo it
+            if plan.report.frames_out == 0:  # all windows of a sharded bag empty (process_bag refuses a whole one)
                 msg = f"{plan.bag.source}: no frame was processed (no matched stereo set)"
                 raise BagError(msg)
             if plan.parts_dir is not None:
