@@ -29,6 +29,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from offline_process import write_bag
 
 BAGS = 4
+# A local instance on loopback: no usage statistics, and no token written to ~/.ray (Ray 2.60 creates
+# one for a new local instance, which later `ray start` heads on this machine would then demand).
+RAY_LOOPBACK = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
 # mode: (flags, extra environment). Ray starts its workers at niceness 15, so on a machine where
 # anything else runs they get less CPU than the local workers; "nice 0" gives them the same priority.
 MODES: dict[str, tuple[list[str], dict[str, str]]] = {
@@ -46,7 +49,7 @@ def run_mode(
     report = out.with_suffix(".json")
     command = [sys.executable, "-m", "stereo_depth.cli", "process", *map(str, bags), "--out-dir", str(out)]
     command += ["--profile", profile, "--outputs", "disparity", "--report", str(report), *flags]
-    env = {**os.environ, "OPENCV_FOR_THREADS_NUM": "1", "RAY_USAGE_STATS_ENABLED": "0", **extra_env}
+    env = {**os.environ, "OPENCV_FOR_THREADS_NUM": "1", **RAY_LOOPBACK, **extra_env}
     start = time.perf_counter()
     subprocess.run(command, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - start
@@ -61,7 +64,7 @@ def ray_costs(tasks: int) -> tuple[float, float]:
     (submitted together, awaited) once they are."""
     import ray
 
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    os.environ.update(RAY_LOOPBACK)
     start = time.perf_counter()
     ray.init(address="local", include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
     try:
