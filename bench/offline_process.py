@@ -38,6 +38,7 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import OpenCVMatcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.frames import OutputState
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -83,14 +84,14 @@ def ours_unwritten(bag: Path, profile: str) -> float:
     """frames/s of what `process` does per frame without the storage: read + pair, pipeline, every output
     message built (stereo_depth.bag.process's own functions), nothing written."""
     types, params, options = rosbags_types(), make_params(profile), ProcessOptions()
-    pipeline = StereoPipeline(params)
+    pipeline, state = StereoPipeline(params), OutputState()
     start = time.perf_counter()
     done = 0
     with StereoBagReader(bag) as reader:
         for frame in reader.frames():
-            names = reader.topics.names
+            names = reader.topics.input_names
             decoded, result = run_frame(pipeline, frame, reader.topics.rectified, options.output, names)
-            frame_outputs(types, pipeline, decoded, result, options)
+            frame_outputs(types, pipeline, decoded, result, options, state)
             done += 1
     return done / (time.perf_counter() - start)
 

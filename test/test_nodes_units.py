@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import threading
 import time
 from collections.abc import Iterator
@@ -17,6 +18,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
 
+from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.frames import OutputOptions
 from stereo_depth.ros import problems
@@ -26,6 +28,7 @@ from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.stereo_io import LatestWorker
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
+BAGS = Path(__file__).parents[1] / "bags"
 RELIABLE, BEST_EFFORT = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
 
 
@@ -166,6 +169,20 @@ def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
     expected |= {f.name: getattr(OutputOptions(), f.name) for f in dataclasses.fields(OutputOptions)}
     assert values == expected
+
+
+def test_rviz_and_foxglove_views_show_what_stereo_node_publishes_in_the_bundled_bags_frame() -> None:
+    from stereo_depth.nodes.stereo_node import OUTPUT_TYPES
+
+    rviz = yaml.safe_load((CONFIG.parent / "stereo_depth.rviz").read_text())["Visualization Manager"]
+    foxglove = json.loads((CONFIG.parent / "stereo_depth.foxglove.json").read_text())["configById"]
+    rviz_topics = {display["Topic"]["Value"] for display in rviz["Displays"] if "Topic" in display}
+    foxglove_topics = {panel["imageMode"]["imageTopic"] for panel in foxglove.values() if "imageMode" in panel}
+    foxglove_topics |= {topic for panel in foxglove.values() for topic in panel.get("topics", {})}
+    shown = {"/stereo/left/image_rect", "/stereo/depth", "/stereo/points2"}
+    assert rviz_topics == foxglove_topics == shown and shown <= {f"/stereo/{name}" for name in OUTPUT_TYPES}
+    frame = read_messages(BAGS / "middlebury", ["/stereo/left/camera_info"])["/stereo/left/camera_info"][0]
+    assert rviz["Global Options"]["Fixed Frame"] == foxglove["3D!cloud"]["followTf"] == frame.header.frame_id
 
 
 class FakeLogger:
