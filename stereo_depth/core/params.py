@@ -172,7 +172,7 @@ class StereoParams:
                 (
                     self.uniqueness_ratio < 100,
                     f"uniqueness_ratio {self.uniqueness_ratio:g} must be below 100 for sgbm "
-                    "(100 rejects every pixel; SGBM_3WAY divides by 100 - ratio and crashes)",
+                    "(100 rejects every pixel, and SGBM_3WAY stops the process with a floating-point exception)",
                 ),
             ]
         return checks
