@@ -25,6 +25,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -107,7 +108,7 @@ def bare(bag: Path, profile: str) -> float:
     maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     with Reader(bag) as reader:
         for connection, _, raw in reader.messages():
-            msg = store.deserialize_cdr(raw, connection.msgtype)
+            msg: Any = store.deserialize_cdr(raw, connection.msgtype)
             side = "left" if "/left/" in connection.topic else "right"
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if connection.topic.endswith("camera_info"):

@@ -198,6 +198,7 @@ def test_middlebury_depth_uses_the_principal_point_offset(middlebury_processed: 
         doffs = DOFFS[gt.scene]
         assert camera.cx_right - camera.cx_left == pytest.approx(doffs, abs=1e-3)
         z = image_to_array(message)
+        assert gt.mask is not None
         valid = np.isfinite(z) & np.isfinite(gt.disparity) & gt.mask
         assert valid.mean() > 0.5
         relative = z[valid] * (gt.disparity[valid] + doffs) / (camera.fx * camera.baseline) - 1.0

@@ -155,6 +155,7 @@ def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: 
 
     expected = artl.offline()
     camera = expected.camera
+    assert camera is not None
     height, width = expected.disparity.shape
     window = valid_region(expected.disparity)
     reference = disparity_to_msg(RCLPY_TYPES, disparity_msg.header, expected.disparity, camera, 0, 64, window)
@@ -212,7 +213,8 @@ def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: 
     live_cloud, split_cloud = live["points2"].wait_stamp(stamp), split_points.wait_stamp(stamp)
     live_disparity, chain_disparity = live["disparity"].wait_stamp(stamp), split_disparity.wait_stamp(stamp)
 
-    assert euroc.offline().camera.needs_rectification("left")
+    camera = euroc.offline().camera
+    assert camera is not None and camera.needs_rectification("left")
     assert bytes(chain_disparity.image.data) == bytes(live_disparity.image.data)
     assert chain_disparity.valid_window == live_disparity.valid_window
     assert list(split_cloud.fields) == list(live_cloud.fields)
@@ -259,6 +261,7 @@ def test_runtime_parameter_change_changes_output_and_invalid_is_refused(
         msg = live["disparity"].wait_stamp(stamp)
         assert msg.max_disparity == 50.0 + 31.0
         expected = artl.offline(disparity_range=32)
+        assert expected.camera is not None
         reference = disparity_to_msg(RCLPY_TYPES, msg.header, expected.disparity, expected.camera, 0, 32, (0, 0, 0, 0))
         assert bytes(msg.image.data) == bytes(reference.image.data)
 
