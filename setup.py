@@ -20,6 +20,7 @@ setup(
         (f"share/{PACKAGE}/environment", glob("environment/*")),
     ],
     install_requires=["setuptools"],
+    extras_require={"ray": ["ray>=2.60"]},  # `process --ray`: bags as tasks on a Ray cluster
     zip_safe=True,
     maintainer="stereo_depth maintainers",
     maintainer_email="maintainers@stereo-depth.invalid",

@@ -34,7 +34,7 @@ def texture(rng: np.random.Generator, height: int, width: int, mean: float) -> n
     window_sum = sum(noise[dy : dy + height, dx : dx + width] for dy in range(3) for dx in range(3))
     smooth = np.asarray(window_sum, dtype=np.float32) / 9.0
     smooth = (smooth - smooth.mean()) / (smooth.std() + 1e-6)
-    return np.clip(mean + 45.0 * smooth, 0, 255).astype(np.float32)
+    return np.asarray(np.clip(mean + 45.0 * smooth, 0, 255), dtype=np.float32)
 
 
 def paste(image: np.ndarray, patch: np.ndarray, x0: int, y0: int) -> None:

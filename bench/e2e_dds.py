@@ -75,6 +75,8 @@ CASES = {
     c.name: c
     for c in (
         Case("fast_vga_15", 640, 480, 15.0, ("profile:=fast",)),
+        Case("quality_vga_30_128", 640, 480, 30.0, ("profile:=quality", "disparity_range:=128")),
+        Case("default_vga_30_128", 640, 480, 30.0, ("profile:=default", "disparity_range:=128")),
         Case("fast_vga_30", 640, 480, 30.0, ("profile:=fast",)),
         Case("fast_vga_60", 640, 480, 60.0, ("profile:=fast",)),
         Case("fast_vga_30_processed", 640, 480, 30.0, ("profile:=fast", "downsample_output:=processed")),

@@ -25,6 +25,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -38,6 +39,7 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import OpenCVMatcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.frames import OutputState
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -83,14 +85,14 @@ def ours_unwritten(bag: Path, profile: str) -> float:
     """frames/s of what `process` does per frame without the storage: read + pair, pipeline, every output
     message built (stereo_depth.bag.process's own functions), nothing written."""
     types, params, options = rosbags_types(), make_params(profile), ProcessOptions()
-    pipeline = StereoPipeline(params)
+    pipeline, state = StereoPipeline(params), OutputState()
     start = time.perf_counter()
     done = 0
     with StereoBagReader(bag) as reader:
         for frame in reader.frames():
-            names = reader.topics.names
+            names = reader.topics.input_names
             decoded, result = run_frame(pipeline, frame, reader.topics.rectified, options.output, names)
-            frame_outputs(types, pipeline, decoded, result, options)
+            frame_outputs(types, pipeline, decoded, result, options, state)
             done += 1
     return done / (time.perf_counter() - start)
 
@@ -106,7 +108,7 @@ def bare(bag: Path, profile: str) -> float:
     maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     with Reader(bag) as reader:
         for connection, _, raw in reader.messages():
-            msg = store.deserialize_cdr(raw, connection.msgtype)
+            msg: Any = store.deserialize_cdr(raw, connection.msgtype)
             side = "left" if "/left/" in connection.topic else "right"
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if connection.topic.endswith("camera_info"):

@@ -6,8 +6,9 @@ stages: decode (two rclpy Images to arrays, as the node reads them), the StereoP
 match, filter, depth), points (x, y, z and rgb computed straight into the organized 32-byte-point
 PointCloud2, with the node's reused buffer, as the node does), encode (the DisparityImage). The bare
 baseline does what a hand-written OpenCV script would: remap x2, the matcher, reprojectImageTo3D. Both run in the same
-process, interleaved, and the table gives medians and two ratios: the pipeline alone / bare, and
-everything the node does per frame (decode + pipeline + encode) / bare.
+process, interleaved (profiles too, frame by frame), and the table gives medians and three ratios: the
+pipeline alone / bare, everything the node does per frame (decode + pipeline + encode) / bare, and the
+match stage / the first profile's match stage (`--profiles default quality`: quality's time in SGBM's).
 
     .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc]
 """
@@ -25,7 +26,7 @@ import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.matching import Matcher, create_matcher
-from stereo_depth.core.params import make_params
+from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import disparity_message
@@ -45,8 +46,9 @@ def scaled_info(info: CameraInfo, width: int, height: int) -> CameraInfo:
 
 def load_pair(width: int, height: int) -> tuple[np.ndarray, np.ndarray, StereoCamera]:
     name = sorted((EUROC / "left").glob("*.png"))[0].name
-    left = cv2.resize(cv2.imread(str(EUROC / "left" / name), cv2.IMREAD_GRAYSCALE), (width, height))
-    right = cv2.resize(cv2.imread(str(EUROC / "right" / name), cv2.IMREAD_GRAYSCALE), (width, height))
+    left, right = (cv2.imread(str(EUROC / side / name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right"))
+    assert left is not None and right is not None, f"EuRoC pair {name} unreadable"
+    left, right = cv2.resize(left, (width, height)), cv2.resize(right, (width, height))
     info_l, info_r = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
     return left, right, StereoCamera(scaled_info(info_l, width, height), scaled_info(info_r, width, height))
 
@@ -88,6 +90,11 @@ def timed_frame(
     return ms
 
 
+def same_work(params: StereoParams) -> bool:
+    """Whether a bare OpenCV script does this profile's work (no downsampling, no hole filling)."""
+    return params.downsample == 1 and not params.fill_holes
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)
@@ -96,32 +103,37 @@ def main() -> None:
     args = parser.parse_args()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
     header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>8s}" for s in COLUMNS)
-    print(header + f"{'pipeline':>9s}{'node':>8s}{'bare cv':>8s}{'pipe/bare':>10s}{'node/bare':>10s}")
+    print(
+        header
+        + f"{'pipeline':>9s}{'node':>8s}{'bare cv':>8s}{'pipe/bare':>10s}{'node/bare':>10s}"
+        + f"  match/{args.profiles[0]}"
+    )
     for width, height in RESOLUTIONS:
         left, right, camera = load_pair(width, height)
         header_msg = make_header(RCLPY_TYPES, 1, "left")
         messages = (array_to_image(RCLPY_TYPES, header_msg, left), array_to_image(RCLPY_TYPES, header_msg, right))
+        params = {p: make_params(p, {"disparity_range": args.disparity_range}) for p in args.profiles}
+        pipelines = {p: StereoPipeline(params[p]) for p in args.profiles}
+        buffers = {p: CloudBuffer() for p in args.profiles}
+        bare_matchers = {p: create_matcher(params[p]) for p in args.profiles}
+        runs: dict[str, list[dict[str, float]]] = {p: [] for p in args.profiles}
+        bare: dict[str, list[float]] = {p: [] for p in args.profiles}
+        for _ in range(args.repeat + 2):  # profiles interleaved: a load change on the machine hits them all alike
+            for profile in args.profiles:
+                runs[profile].append(timed_frame(pipelines[profile], messages, camera, buffers[profile]))
+                if same_work(params[profile]):
+                    bare[profile].append(bare_opencv(left, right, camera, bare_matchers[profile]))
+        first = statistics.median(r["match"] for r in runs[args.profiles[0]][2:])
         for profile in args.profiles:
-            params = make_params(profile, {"disparity_range": args.disparity_range})
-            pipeline = StereoPipeline(params)
-            buffer = CloudBuffer()
-            same_work = params.downsample == 1 and not params.fill_holes
-            bare_matcher = create_matcher(params)
-            runs: list[dict[str, float]] = []
-            bare = []
-            for _ in range(args.repeat + 2):
-                runs.append(timed_frame(pipeline, messages, camera, buffer))
-                if same_work:
-                    bare.append(bare_opencv(left, right, camera, bare_matcher))
-            med = {k: statistics.median(r[k] for r in runs[2:]) for k in runs[0]}
+            med = {k: statistics.median(r[k] for r in runs[profile][2:]) for k in runs[profile][0]}
             row = f"{profile:18s}{f'{width}x{height}':>10s}" + "".join(f"{med[c]:8.1f}" for c in COLUMNS)
             row += f"{med['pipeline']:9.1f}{med['node']:8.1f}"
-            if same_work:
-                bare_ms = statistics.median(bare[2:])
+            if same_work(params[profile]):
+                bare_ms = statistics.median(bare[profile][2:])
                 row += f"{bare_ms:8.1f}{med['pipeline'] / bare_ms:10.2f}{med['node'] / bare_ms:10.2f}"
             else:  # downsampling / hole filling: no bare OpenCV call does the same work
                 row += f"{'-':>8s}{'-':>10s}{'-':>10s}"
-            print(row, flush=True)
+            print(row + f"{med['match'] / first:10.2f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -416,25 +416,33 @@ def depth_to_cloud(
     color: np.ndarray | None = None,
     avoid_padding: bool = False,
     buffer: CloudBuffer | None = None,
+    *,
+    organized: bool = True,
+    voxel_size: float = 0.0,
 ) -> Any:
-    """Organized PointCloud2 (height x width) of a depth image, NaN for invalid points, is_dense false:
-    the one cloud builder. x, y, z are computed straight into the message's buffer (no points array).
+    """PointCloud2 of a depth image: the one cloud builder.
 
-    `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous cloud (see CloudBuffer).
+    `organized`: height x width points, NaN for invalid ones, is_dense false (stereo_image_proc's
+    layout), x, y, z computed straight into the message's buffer. Otherwise the valid points only
+    (REP 117's dense cloud: height 1, is_dense true), thinned to one point per `voxel_size` voxel when
+    that is > 0 (the members' centroid, the colour of one of them).
+    `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous organized cloud (see
+    CloudBuffer).
     """
-    height, width = depth.shape
     fields, point_step = cloud_layout(color is not None, avoid_padding)
+    height, width = depth.shape
     key = (height, width, tuple(fields), point_step)
     data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
     records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
     depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
     if color is not None:
-        rgb_offset = fields[3][1]
-        rgb = records[:, :, rgb_offset : rgb_offset + 4].view(np.uint32)[:, :, 0]
-        if color.ndim == 2:  # grey: r = g = b
-            np.multiply(color, np.uint32(0x010101), out=rgb, dtype=np.uint32)
-        else:
-            rgb[...] = pack_rgb(color)
+        _packed(color, out=_rgb_view(records, fields))
+    if not organized:  # the valid points, copied out of the organized records (faster than gathering)
+        kept = np.compress(np.isfinite(depth).ravel(), records.reshape(-1, point_step), axis=0)
+        if voxel_size > 0:
+            kept = _voxel_records(kept, fields, voxel_size)
+        height, width = 1, len(kept)
+        data = _bytes(types, kept)
     return _with_data(
         types,
         types.PointCloud2,
@@ -446,8 +454,59 @@ def depth_to_cloud(
         is_bigendian=sys.byteorder == "big",
         point_step=point_step,
         row_step=point_step * width,
-        is_dense=False,
+        is_dense=not organized,
     )
+
+
+def _packed(color: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) PCL rgb of a BGR or grey (r = g = b) image, into `out` when given."""
+    if out is None:
+        out = np.empty(color.shape[:2], np.uint32)
+    if color.ndim == 2:
+        np.multiply(color, np.uint32(0x010101), out=out, dtype=np.uint32)
+    else:
+        out[...] = pack_rgb(color)
+    return out
+
+
+def _rgb_view(records: np.ndarray, fields: list[tuple[str, int]]) -> np.ndarray:
+    """The rgb field of (..., point_step) uint8 records as uint32, (...)."""
+    offset = fields[3][1]
+    view: np.ndarray = records[..., offset : offset + 4].view(np.uint32)[..., 0]
+    return view
+
+
+def _voxel_records(records: np.ndarray, fields: list[tuple[str, int]], size: float) -> np.ndarray:
+    """(N, point_step) records thinned to one per voxel (`voxel_thinned`), padding zero."""
+    rgb = _rgb_view(records, fields) if len(fields) > 3 else None
+    xyz, rgb = voxel_thinned(records.view(np.float32)[:, 0:3], rgb, size)
+    out = np.zeros((len(xyz), records.shape[1]), np.uint8)
+    out.view(np.float32)[:, 0:3] = xyz
+    if rgb is not None:
+        _rgb_view(out, fields)[...] = rgb
+    return out
+
+
+def voxel_thinned(xyz: np.ndarray, rgb: np.ndarray | None, size: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point per occupied cube of edge `size` (metres): the centroid of its points, and the colour
+    of one of them (a mean of packed colours would be no colour at all). Sorting by cube is the cost."""
+    if len(xyz) == 0:
+        return xyz, rgb
+    scale = np.float32(1.0 / size)
+    ids = np.zeros(len(xyz), np.int64)
+    for axis in range(3):  # column by column: reductions over an (N, 3) array's axis 0 are slow
+        cell = np.floor(xyz[:, axis] * scale).astype(np.int64)
+        low = cell.min()
+        ids *= cell.max() - low + 1
+        ids += cell - low
+    order = np.argsort(ids)
+    ids = ids[order]
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    counts = np.diff(np.r_[starts, len(ids)])
+    centroids = np.empty((len(starts), 3), np.float32)
+    for axis in range(3):
+        centroids[:, axis] = np.add.reduceat(xyz[order, axis], starts, dtype=np.float64) / counts
+    return centroids, rgb[order[starts]] if rgb is not None else None
 
 
 def cloud_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:

@@ -127,7 +127,17 @@ class NodeOptions:
 
 SYNC_OPTIONS = ("queue_size", "approximate_sync", "approximate_sync_tolerance_seconds")
 INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_waiting_frames", "max_image_pixels")
-CLOUD_OPTIONS = ("use_color", "avoid_point_cloud_padding")
+# what shapes points2 (stereo_node, point_cloud_node); stereo_node also declares depth_encoding
+CLOUD_OPTIONS = (
+    "use_color",
+    "avoid_point_cloud_padding",
+    "min_depth",
+    "max_depth",
+    "mask_image",
+    "organized_cloud",
+    "cloud_voxel_size",
+    "points_max_rate",
+)
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
 STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 

@@ -71,21 +71,8 @@ def ros(ros_env: dict[str, str]) -> Iterator[Any]:
 @pytest.fixture(scope="session", autouse=True)
 def compiled_census_core() -> None:
     """numba compiles census_sgm once per machine (~30 s, then cached beside the module): do it here,
-    before any test waits with a timeout on a node process that would otherwise compile it."""
-    import numpy as np
+    as `stereo-depth compile` does, before any test waits with a timeout on a node process that would
+    otherwise compile it."""
+    from stereo_depth.core.census_sgm import compile_kernels
 
-    from stereo_depth.core.census_sgm import census_sgm, fill_holes
-
-    image = np.zeros((24, 48), np.uint8)
-    disparity, _ = census_sgm(
-        image,
-        image,
-        min_disparity=0,
-        num_disparities=16,
-        window_size=1,
-        P1=20,
-        P2=200,
-        uniqueness_ratio=3,
-        disp12_max_diff=1,
-    )
-    fill_holes(disparity, image)
+    compile_kernels()

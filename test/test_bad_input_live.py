@@ -103,7 +103,8 @@ class FaultyNode:
             lines = self.process.output()[mark:].splitlines()
             return next((line for line in lines if all(p in line for p in parts)), None)
 
-        return wait_until(find, f"a log line with {parts}")
+        line: str = wait_until(find, f"a log line with {parts}")
+        return line
 
     def wait_diagnostics(self, since: int, key: str, *parts: str) -> dict[str, str]:
         """Values of the first diagnostics message after index `since` whose `key` has every part."""
@@ -115,7 +116,8 @@ class FaultyNode:
                     return values
             return None
 
-        return wait_until(find, f"diagnostics '{key}' with {parts}")
+        values: dict[str, str] = wait_until(find, f"diagnostics '{key}' with {parts}")
+        return values
 
     def good_frame_is_exact(self) -> None:
         """The node is alive and turns the next good set into exactly the offline disparity."""

@@ -44,8 +44,8 @@ def images(draw: st.DrawFn, size: tuple[int, int] | None = None, plausible_odds:
     known = st.sampled_from(sorted(ENCODINGS))
     encoding = draw(camera if plausible else st.one_of(known, st.sampled_from(JUNK_ENCODINGS), st.text(max_size=6)))
     if size is None:
-        height, width = (st.integers(1, 40), st.integers(1, 120)) if plausible else (uint32(40), uint32(120))
-        size = (draw(height), draw(width))
+        heights, widths = (st.integers(1, 40), st.integers(1, 120)) if plausible else (uint32(40), uint32(120))
+        size = (draw(heights), draw(widths))
     height, width = size
     dtype, channels, _ = ENCODINGS.get(encoding, ("u1", 1, None))
     row = width * channels * np.dtype(dtype).itemsize

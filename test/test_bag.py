@@ -198,6 +198,7 @@ def test_middlebury_depth_uses_the_principal_point_offset(middlebury_processed: 
         doffs = DOFFS[gt.scene]
         assert camera.cx_right - camera.cx_left == pytest.approx(doffs, abs=1e-3)
         z = image_to_array(message)
+        assert gt.mask is not None
         valid = np.isfinite(z) & np.isfinite(gt.disparity) & gt.mask
         assert valid.mean() > 0.5
         relative = z[valid] * (gt.disparity[valid] + doffs) / (camera.fx * camera.baseline) - 1.0
@@ -395,9 +396,22 @@ def test_process_builds_outputs_with_the_nodes_output_options(tmp_path: Path) ->
 def test_process_honours_max_image_pixels_and_names_the_topic(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["process", str(EUROC_BAG), str(tmp_path / "out"), "--set", "max_image_pixels=1000"]) == 1
-    out = capsys.readouterr().out
-    assert f"skipped 6x: {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in out
+    out = tmp_path / "out"
+    assert main(["process", str(EUROC_BAG), str(out), "--set", "max_image_pixels=1000"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("ERROR: no frame was processed from 6 left / 6 right images: 6 ")
+    assert f"skipped because {NS}/left/image_raw: image is 752x480, more than the limit of 1000 pixels" in err
+    assert not out.exists() and leftovers(tmp_path) == []  # no empty bag
+
+
+def test_a_mask_that_cannot_be_used_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    assert main(["process", str(EUROC_BAG), str(out), "--set", f"mask_image={tmp_path / 'none.png'}"]) == 1
+    assert f"ERROR: mask_image {tmp_path / 'none.png'}: cannot read it" in capsys.readouterr().err
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.full((48, 75), 255, np.uint8))
+    assert main(["process", str(EUROC_BAG), str(out), "--set", f"mask_image={small}"]) == 1
+    assert f"6 skipped because mask_image {small} is 75x48 but the left camera is 752x480" in capsys.readouterr().err
 
 
 def test_misspelt_parameters_name_the_closest_known_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -463,9 +477,9 @@ def test_unpaired_stamps_are_reported_and_approximate_sync_pairs_them(tmp_path: 
         )
         write_stream(frames, writer, left_layout)
         write_stream(frames, writer, right_layout)
-    exact = process_bag(bag, tmp_path / "exact", make_params())
-    assert (exact.left_images, exact.frames_out) == (3, 0) and exact.unmatched == 12
-    assert any("approximate" in line for line in exact.lines())
+    with pytest.raises(BagError, match=r"from 3 left / 3 right images: no set .* \(12 unmatched\).*--approximate-sync"):
+        process_bag(bag, tmp_path / "exact", make_params())
+    assert not (tmp_path / "exact").exists()
     options = ProcessOptions(sync=SyncPolicy.from_node_parameters(True, 5, 0.005))
     assert process_bag(bag, tmp_path / "approx", make_params(), options).frames_out == 3
 

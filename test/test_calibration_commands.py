@@ -163,12 +163,17 @@ def test_check_calibration_says_ok_with_the_true_calibration(
     assert lines[-1].startswith("verdict: OK: 6 of 6 frames judged")
 
 
+def write_rotated_calibration(folder: Path, degrees: float) -> None:
+    """The true EuRoC calibration as left.yaml / right.yaml, the right camera turned about the baseline."""
+    left, right = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
+    (folder / "left.yaml").write_text(camera_info_to_yaml(left, "left"))
+    (folder / "right.yaml").write_text(camera_info_to_yaml(rotated_about_baseline(right, degrees), "right"))
+
+
 def test_check_calibration_says_error_with_a_rotated_calibration(
     euroc_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    left, right = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
-    (tmp_path / "left.yaml").write_text(camera_info_to_yaml(left, "left"))
-    (tmp_path / "right.yaml").write_text(camera_info_to_yaml(rotated_about_baseline(right, 0.5), "right"))
+    write_rotated_calibration(tmp_path, 0.5)
     code, stdout, _ = run_cli(["check-calibration", str(euroc_bag), "--camera-info", str(tmp_path)], capsys)
     assert code == 2
     assert stdout.strip().splitlines()[-1].startswith("verdict: ERROR")
@@ -179,9 +184,7 @@ def test_check_calibration_says_warn_with_a_slightly_rotated_calibration(
     euroc_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """0.12 degrees about the baseline puts the rows ~1 px apart (measured 0.98): WARN, exit status 1."""
-    left, right = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
-    (tmp_path / "left.yaml").write_text(camera_info_to_yaml(left, "left"))
-    (tmp_path / "right.yaml").write_text(camera_info_to_yaml(rotated_about_baseline(right, 0.12), "right"))
+    write_rotated_calibration(tmp_path, 0.12)
     code, stdout, stderr = run_cli(["check-calibration", str(euroc_bag), "--camera-info", str(tmp_path)], capsys)
     assert code == 1 and "ERROR:" not in stderr
     lines = stdout.strip().splitlines()

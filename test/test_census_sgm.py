@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import cache
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -25,7 +26,7 @@ from stereo_depth.formats.scenes import load_scene as read_scene
 from conftest import SCENES as SCENE_ROOT
 
 PROFILE = make_params("quality")
-QUALITY = {  # the quality profile, as census_sgm keywords
+QUALITY: dict[str, Any] = {  # the quality profile, as census_sgm keywords
     "window_size": PROFILE.correlation_window_size,
     "P1": PROFILE.P1,
     "P2": PROFILE.P2,
@@ -34,7 +35,8 @@ QUALITY = {  # the quality profile, as census_sgm keywords
     "speckle_size": PROFILE.speckle_size,
     "speckle_range": PROFILE.speckle_range,
 }
-GAPS = {"gap_max": 20, "gap_tol": 2.0, "occlusion_margin": 2, "border_margin": 1}  # census_sgm's defaults
+# census_sgm's defaults
+GAPS: dict[str, Any] = {"gap_max": 20, "gap_tol": 2.0, "occlusion_margin": 2, "border_margin": 1}
 
 
 @cache
@@ -63,7 +65,8 @@ def bad2(disp: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[float, flo
     return (wrong.sum() + n - ne) / n, wrong.sum() / max(ne, 1), ne / n
 
 
-# measured: tsukuba 0.017/0.978, cones 0.045/0.924, artl 0.051/0.926 (bad2-est/density)
+# measured: tsukuba 0.016/0.980, cones 0.045/0.923, artl 0.053/0.931 (bad2-est/density; 16-bit path costs
+# gave 0.017/0.978, 0.045/0.924, 0.051/0.926)
 SCENES = {
     "tsukuba": (0.03, 0.95),
     "cones": (0.065, 0.90),
@@ -206,3 +209,11 @@ def test_rejects_settings_the_kernels_cannot_honour(keywords: dict[str, int], me
     settings: dict[str, Any] = {"min_disparity": 0, "num_disparities": 16, **QUALITY, **keywords}
     with pytest.raises(ValueError, match=message):
         census_sgm(img, img, **settings)
+
+
+def test_compile_command_builds_the_core_ahead_and_names_its_cache(capsys: pytest.CaptureFixture[str]) -> None:
+    from stereo_depth.cli import main
+
+    assert main(["compile"]) == 0
+    cache = capsys.readouterr().out.strip().rsplit("numba cache: ", 1)[1]
+    assert any(Path(cache).glob("census_sgm._sweep-*.nbc")), "the sweep kernel's machine code must be cached"

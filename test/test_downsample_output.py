@@ -5,6 +5,8 @@ The Middlebury artl scene has different cx for its two cameras, so a wrongly sca
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,8 @@ from stereo_depth.formats.scenes import load_scene
 from conftest import SCENES
 
 
-def run(**overrides: object):
+def run(**overrides: object) -> Any:
+    """The processed artl frame (Any: every optional output of it is filled in here)."""
     scene = load_scene(SCENES / "artl")
     pipeline = StereoPipeline(make_params("fast", {"fill_holes": False, **overrides}))
     left_info, right_info = scene.camera_infos("left")

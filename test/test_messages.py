@@ -79,7 +79,8 @@ def test_image_round_trip_keeps_pixels_and_header(bgr: np.ndarray) -> None:
 )
 def test_colour_encodings_arrive_as_bgr(bgr: np.ndarray, encoding: str, convert: int) -> None:
     pixels = cv2.cvtColor(bgr, convert)
-    msg = raw_image(encoding, *pixels.shape[:2], pixels.shape[1] * pixels.shape[2], pixels.tobytes())
+    height, width, channels = pixels.shape
+    msg = raw_image(encoding, height, width, width * channels, pixels.tobytes())
     np.testing.assert_array_equal(image_to_pipeline(msg), bgr)
 
 

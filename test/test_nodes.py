@@ -24,11 +24,11 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.camera import CameraInfo as Calibration
-from stereo_depth.core.matching import valid_window
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
+from stereo_depth.frames import valid_region
 from stereo_depth.messages import (
     array_to_image,
     camera_info_to_msg,
@@ -111,6 +111,10 @@ def artl() -> Pair:
 
 @pytest.fixture(scope="module")
 def euroc() -> Pair:
+    return euroc_pair()
+
+
+def euroc_pair() -> Pair:
     """Raw, distorted EuRoC pair: only the nodes' rectification makes it matchable."""
     name = sorted((EUROC / "left").glob("*.png"))[0].name
     left = read_image(EUROC / "left" / name, cv2.IMREAD_GRAYSCALE)
@@ -163,9 +167,9 @@ def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: 
 
     expected = artl.offline()
     camera = expected.camera
-    params = make_params()
+    assert camera is not None
     height, width = expected.disparity.shape
-    window = valid_window(width, height, params)
+    window = valid_region(expected.disparity)
     reference = disparity_to_msg(RCLPY_TYPES, disparity_msg.header, expected.disparity, camera, 0, 64, window)
     assert camera.disparity_offset == -50.0  # cx_l 148, cx_r 198
     assert disparity_msg.header.frame_id == FRAME
@@ -177,7 +181,7 @@ def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: 
     assert disparity_msg.delta_d == 1.0 / 16.0
     roi = disparity_msg.valid_window
     assert (roi.x_offset, roi.y_offset, roi.width, roi.height) == window
-    assert 0 < roi.x_offset < width and 0 < roi.width < width
+    assert 0 < roi.x_offset < width and 0 < roi.width < width  # SGBM: nothing left of its search range
 
     image = image_to_array(disparity_msg.image)
     invalid = ~np.isfinite(expected.disparity)
@@ -221,7 +225,8 @@ def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: 
     live_cloud, split_cloud = live["points2"].wait_stamp(stamp), split_points.wait_stamp(stamp)
     live_disparity, chain_disparity = live["disparity"].wait_stamp(stamp), split_disparity.wait_stamp(stamp)
 
-    assert euroc.offline().camera.needs_rectification("left")
+    camera = euroc.offline().camera
+    assert camera is not None and camera.needs_rectification("left")
     assert bytes(chain_disparity.image.data) == bytes(live_disparity.image.data)
     assert chain_disparity.valid_window == live_disparity.valid_window
     assert list(split_cloud.fields) == list(live_cloud.fields)
@@ -268,6 +273,7 @@ def test_runtime_parameter_change_changes_output_and_invalid_is_refused(
         msg = live["disparity"].wait_stamp(stamp)
         assert msg.max_disparity == 50.0 + 31.0
         expected = artl.offline(disparity_range=32)
+        assert expected.camera is not None
         reference = disparity_to_msg(RCLPY_TYPES, msg.header, expected.disparity, expected.camera, 0, 32, (0, 0, 0, 0))
         assert bytes(msg.image.data) == bytes(reference.image.data)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import threading
 import time
 from collections.abc import Iterator
@@ -18,6 +19,7 @@ from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
 from std_msgs.msg import Header
 
+from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.frames import OutputOptions
 from stereo_depth.ros import problems
@@ -29,6 +31,7 @@ from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_prof
 from stereo_depth.sync import SyncCounters
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
+BAGS = Path(__file__).parents[1] / "bags"
 RELIABLE, BEST_EFFORT = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
 
 
@@ -200,6 +203,20 @@ def test_diagnostics_count_what_pairing_did_per_topic_and_name_the_bottleneck() 
     assert bottleneck.startswith("input /l/camera_info") and "matching slower" in bottleneck
     assert "Inputs and outputs over DDS" in bottleneck
     assert report()["bottleneck"] == "none"  # nothing lost since the previous report
+
+
+def test_rviz_and_foxglove_views_show_what_stereo_node_publishes_in_the_bundled_bags_frame() -> None:
+    from stereo_depth.nodes.stereo_node import OUTPUT_TYPES
+
+    rviz = yaml.safe_load((CONFIG.parent / "stereo_depth.rviz").read_text())["Visualization Manager"]
+    foxglove = json.loads((CONFIG.parent / "stereo_depth.foxglove.json").read_text())["configById"]
+    rviz_topics = {display["Topic"]["Value"] for display in rviz["Displays"] if "Topic" in display}
+    foxglove_topics = {panel["imageMode"]["imageTopic"] for panel in foxglove.values() if "imageMode" in panel}
+    foxglove_topics |= {topic for panel in foxglove.values() for topic in panel.get("topics", {})}
+    shown = {"/stereo/left/image_rect", "/stereo/depth", "/stereo/points2"}
+    assert rviz_topics == foxglove_topics == shown and shown <= {f"/stereo/{name}" for name in OUTPUT_TYPES}
+    frame = read_messages(BAGS / "middlebury", ["/stereo/left/camera_info"])["/stereo/left/camera_info"][0]
+    assert rviz["Global Options"]["Fixed Frame"] == foxglove["3D!cloud"]["followTf"] == frame.header.frame_id
 
 
 class FakeLogger:

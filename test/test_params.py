@@ -46,6 +46,13 @@ def test_stereo_image_proc_aliases_select_the_matcher() -> None:
         ({"stereo_algorithm": 2}, "0 .* or 1"),
         ({"disparity_range": "many"}, "not a valid int"),
         ({"no_such_thing": 1}, "unknown parameter"),
+        # settings a matcher's fixed-width arithmetic cannot hold (swept in test_core_accuracy.py)
+        ({"matcher": "census_sgm", "correlation_window_size": 1, "P2": 60000}, "census_sgm can honour .* at most 1984"),
+        ({"correlation_window_size": 21}, "sgbm keeps costs in 16 bits"),
+        ({"P2": 33000}, "sgbm keeps costs in 16 bits"),
+        ({"uniqueness_ratio": 100}, "below 100 for sgbm"),
+        ({"min_disparity": -2048}, "OpenCV's 16-bit disparity"),
+        ({"matcher": "bm", "disparity_range": 2048}, "OpenCV's 16-bit disparity"),
     ],
 )
 def test_invalid_values_are_refused_with_the_reason(overrides: dict[str, object], reason: str) -> None:
@@ -61,3 +68,9 @@ def test_unknown_profile_names_the_known_ones() -> None:
 def test_every_profile_is_valid() -> None:
     for name in PROFILES:
         make_params(name)
+
+
+def test_census_sgm_takes_stereo_image_proc_window_and_large_windows_with_any_p2_in_range() -> None:
+    """Window-summed census costs are shifted down to fit, so these are honoured, not refused."""
+    make_params("stereo_image_proc", {"matcher": "census_sgm"})
+    make_params("quality", {"correlation_window_size": 15, "P2": 55800})

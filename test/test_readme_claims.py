@@ -472,22 +472,7 @@ def test_replay_loop_keeps_publishing_past_one_pass(ros: RosHarness, ros_env: di
 # ------------------------------------------------------------------ DisparityImage.valid_window
 
 
-@pytest.mark.parametrize(
-    "profile",
-    [
-        "stereo_image_proc",
-        pytest.param(
-            "default",
-            marks=pytest.mark.xfail(
-                strict=True, reason="README claim false: OpenCV SGBM fills columns and rows outside valid_window"
-            ),
-        ),
-        pytest.param(
-            "quality",
-            marks=pytest.mark.xfail(strict=True, reason="README claim false: census_sgm fills the whole image"),
-        ),
-    ],
-)
+@pytest.mark.parametrize("profile", ["stereo_image_proc", "default", "quality"])
 def test_valid_window_holds_every_valid_disparity(profile: str, tmp_path: Path) -> None:
     """README: "valid_window holds the matcher's real valid region": outside it every pixel is invalid,
     inside it most are valid, on the real Middlebury frames as `process` (and the node) publish them."""

@@ -19,11 +19,11 @@ from conftest import EUROC, SCENES, read_image
 
 
 def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
-    pairs = []
+    pairs: list[tuple[str, np.ndarray, np.ndarray]] = []
     for name in ("artl", "cones", "tsukuba"):
         scene = load_scene(SCENES / name)
-        grey = [cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) if i.ndim == 3 else i for i in (scene.left, scene.right)]
-        pairs.append((name, *grey))
+        left_grey, right_grey = (cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) for i in (scene.left, scene.right))
+        pairs.append((name, left_grey, right_grey))
     left = sorted((EUROC / "left").glob("*.png"))[0]
     camera = StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", "cam"))
     raw = [read_image(EUROC / side / left.name, cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]

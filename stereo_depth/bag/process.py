@@ -17,18 +17,19 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import StereoBagReader, StereoMessages, SyncPolicy, TopicChoice
+from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
-from stereo_depth.errors import StereoDepthError
+from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     OUTPUTS,
     Geometry,
     OutputOptions,
+    OutputState,
     StereoFrame,
     decode_frame,
     geometry_outputs,
@@ -36,7 +37,7 @@ from stereo_depth.frames import (
     match_frame,
     result_geometry,
 )
-from stereo_depth.messages import CloudBuffer, MessageTypes
+from stereo_depth.messages import MessageTypes
 
 
 @dataclass
@@ -52,6 +53,9 @@ class ProcessOptions:
     png_dir: Path | None = None
     ply_dir: Path | None = None  # one PLY per frame
     ply_frames: int | None = None  # write PLYs for the first N frames only (None: all)
+    window: TimeWindow | None = None  # one shard of a long bag (stereo_depth.fleet); None: the whole bag
+    custom_data: dict[str, str] = field(default_factory=dict)  # recorded in the output's metadata.yaml
+    progress: bool = True  # the per-bag progress line (fleet runs draw one line for all bags instead)
 
 
 @dataclass
@@ -64,6 +68,7 @@ class ProcessSummary:
     seconds: float = 0.0
     stage_ms: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     topics: list[str] = field(default_factory=list)
+    read: ReadStats = field(default_factory=ReadStats)
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
 
@@ -73,6 +78,21 @@ class ProcessSummary:
 
     def mean_stage_ms(self) -> dict[str, float]:
         return {k: v / max(1, self.frames_out) for k, v in self.stage_ms.items()}
+
+    def why_empty(self) -> str:
+        """Why no frame came out, on one line: the commonest reason a frame was skipped, or the pairing."""
+        seen = f"{self.left_images} left / {self.right_images} right images"
+        if self.skipped:
+            reason, count = self.skipped.most_common(1)[0]
+            others = sum(self.skipped.values()) - count
+            more = f" (and {others} frames for other reasons)" if others else ""
+            return f"no frame was processed from {seen}: {count} skipped because {reason}{more}"
+        if self.unmatched:
+            return (
+                f"no frame was processed from {seen}: no set of messages had equal stamps "
+                f"({self.unmatched} unmatched); try --approximate-sync or a larger --queue-size"
+            )
+        return f"no frame was processed: the bag has {seen}"
 
     def lines(self) -> list[str]:
         out = [
@@ -106,25 +126,26 @@ def frame_outputs(
     frame: StereoFrame,
     result: StereoResult,
     options: ProcessOptions,
-    cloud_buffer: CloudBuffer | None = None,
+    state: OutputState,
 ) -> tuple[dict[str, Any], Geometry | None]:
     """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
     the geometry they were built from (None when no depth output or PLY was asked for)."""
     messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
     wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
+    wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
     if not wanted and options.ply_dir is None:
         return messages, None
-    geometry = result_geometry(pipeline, result)
-    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, cloud_buffer))
+    geometry = result_geometry(pipeline, frame, result)
+    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, state))
     return messages, geometry
 
 
 class Progress:
     """One `\r` line on stderr with frames/s, only when stderr is a terminal."""
 
-    def __init__(self, total: int) -> None:
+    def __init__(self, total: int, enabled: bool = True) -> None:
         self.total = max(total, 1)
-        self.enabled = sys.stderr.isatty()
+        self.enabled = enabled and sys.stderr.isatty()
         self.start = time.perf_counter()
 
     def update(self, done: int) -> None:
@@ -183,16 +204,24 @@ def process_bag(
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
-        StereoBagReader(in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics) as reader,
-        BagWriter(out_bag, storage=options.storage, overwrite=options.overwrite, compress=options.compress) as writer,
+        StereoBagReader(
+            in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics, window=options.window
+        ) as reader,
+        BagWriter(
+            out_bag,
+            storage=options.storage,
+            overwrite=options.overwrite,
+            compress=options.compress,
+            custom_data=options.custom_data,
+        ) as writer,
     ):
         topics = reader.topics
-        progress = Progress(reader.count(topics.names[0]))
-        cloud_buffer = CloudBuffer()  # the writer serializes each message before the next frame reuses it
+        progress = Progress(reader.count(topics.names[0]), options.progress)
+        state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for frame in reader.frames():
             try:
                 decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
-                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, cloud_buffer)
+                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
@@ -208,8 +237,10 @@ def process_bag(
             summary.frames_out += 1
             progress.update(summary.frames_out)
         progress.close()
-        stats = reader.stats
+        stats = summary.read = reader.stats
         summary.left_images, summary.right_images = stats.left_images, stats.right_images
         summary.unmatched = (stats.sync.dropped if stats.sync else 0) + stats.unmatched_at_end
+        if summary.frames_out == 0 and options.window is None:  # a shard may own no frame; a bag must
+            raise BagError(summary.why_empty())  # inside the writer's block: no empty bag is left behind
     summary.seconds = time.perf_counter() - start
     return summary

@@ -95,6 +95,26 @@ class SyncPolicy:
         return cls(approximate, queue_size, round(tolerance_s * 1e9) if tolerance_s > 0 else NO_LIMIT_NS)
 
 
+@dataclass(frozen=True)
+class TimeWindow:
+    """The sets one shard of a long bag owns: set stamps in [start_ns, stop_ns) (None: unbounded).
+
+    Reading starts `lead_ns` of recording time before `start_ns` so the synchronizer holds what one
+    pass over the whole bag would hold at the border, and goes on past `stop_ns` (at most `lead_ns`)
+    until the first set of the next window is paired: its stamp (`ReadStats.handoff_ns`) must be the
+    next shard's first (`ReadStats.first_ns`), which is how a border is checked to pair as one pass does.
+    """
+
+    start_ns: int | None = None
+    stop_ns: int | None = None
+    lead_ns: int = 2_000_000_000
+
+    def owns(self, stamp_ns: int) -> bool:
+        return (self.start_ns is None or stamp_ns >= self.start_ns) and (
+            self.stop_ns is None or stamp_ns < self.stop_ns
+        )
+
+
 @dataclass
 class StereoMessages:
     """One matched set of the four inputs, as deserialized messages (Image or CompressedImage)."""
@@ -261,6 +281,8 @@ class ReadStats:
     matched: int = 0
     sync: SyncCounters | None = None
     unmatched_at_end: int = 0
+    first_ns: int | None = None  # stamp of the first set yielded (a window's first)
+    handoff_ns: int | None = None  # with a window: stamp of the first set after it (None: the bag ended)
 
 
 class StereoBagReader:
@@ -273,10 +295,12 @@ class StereoBagReader:
         namespace: str | None = None,
         sync: SyncPolicy | None = None,
         choice: TopicChoice | None = None,
+        window: TimeWindow | None = None,
     ) -> None:
         self.path = Path(path)
         self.policy = sync or SyncPolicy()
         self.choice = choice or TopicChoice(namespace=namespace)
+        self.window = window or TimeWindow()
         self._reader = open_reader(self.path)
         try:
             self.topics = chosen_topics(self.topic_types(), self.choice)
@@ -316,11 +340,22 @@ class StereoBagReader:
         )
         self.stats.sync = sync.counters
         role_of = {name: i for i, name in enumerate(inputs)}
+        window = self.window
         for topic, message in self._messages(inputs):
             role = role_of[topic]
-            self._count_input(topic)
-            for stamp, msgs in sync.add(role, stamp_to_ns(message.header.stamp), message):
+            stamp_ns = stamp_to_ns(message.header.stamp)
+            if window.owns(stamp_ns):
+                self._count_input(topic)
+            for stamp, msgs in sync.add(role, stamp_ns, message):
+                if window.stop_ns is not None and stamp >= window.stop_ns:
+                    self.stats.handoff_ns = stamp  # set stamps only grow: the window is complete
+                    self.stats.unmatched_at_end = sync.pending()
+                    return
+                if not window.owns(stamp):
+                    continue  # lead-in: paired only to reach one pass's state at the border
                 self.stats.matched += 1
+                if self.stats.first_ns is None:
+                    self.stats.first_ns = stamp
                 yield StereoMessages(stamp, *self._four(msgs))
         for stamp, msgs in sync.flush():
             self.stats.matched += 1
@@ -345,7 +380,12 @@ class StereoBagReader:
         compressed chunk or database page, undecodable CDR) becomes one BagError naming the file,
         whichever library noticed it: rosbags, zstd, apsw and the CDR decoder each raise their own."""
         connections = [c for c in self._reader.connections if c.topic in topics]
-        messages = self._reader.messages(connections)
+        start, stop = self.window.start_ns, self.window.stop_ns
+        messages = self._reader.messages(
+            connections,
+            start=None if start is None else start - self.window.lead_ns,
+            stop=None if stop is None else stop + self.window.lead_ns,
+        )
         while True:
             try:
                 item = next(messages, None)

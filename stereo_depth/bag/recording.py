@@ -49,13 +49,22 @@ class Recording:
         assert reader is not None
         return list(reader.connections)
 
-    def messages(self, connections: Sequence[Connection]) -> Iterator[RawMessage]:
-        """Messages of `connections` in recording order, as Jazzy CDR."""
+    @property
+    def time_span(self) -> tuple[int, int]:
+        """(first, last) recording time in ns, from the bag's index: no message is read."""
+        reader = self._ros1 or self._ros2
+        assert reader is not None
+        return reader.start_time, reader.end_time
+
+    def messages(
+        self, connections: Sequence[Connection], start: int | None = None, stop: int | None = None
+    ) -> Iterator[RawMessage]:
+        """Messages of `connections` in recording order, as Jazzy CDR; recorded in [start, stop) ns if given."""
         if self._ros2 is not None:
-            yield from self._ros2.messages(connections=connections)
+            yield from self._ros2.messages(connections=connections, start=start, stop=stop)
             return
         assert self._ros1 is not None
-        for connection, timestamp, raw in self._ros1.messages(connections=connections):
+        for connection, timestamp, raw in self._ros1.messages(connections=connections, start=start, stop=stop):
             yield connection, timestamp, self._converter(connection.msgtype)(raw)
 
     def _converter(self, msgtype: str) -> Callable[[bytes | memoryview], bytes | memoryview]:

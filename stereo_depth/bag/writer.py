@@ -32,7 +32,13 @@ class BagWriter:
     """Write messages to named topics; connections are added on a topic's first message."""
 
     def __init__(
-        self, path: Path | str, *, storage: str = "mcap", overwrite: bool = False, compress: bool = True
+        self,
+        path: Path | str,
+        *,
+        storage: str = "mcap",
+        overwrite: bool = False,
+        compress: bool = True,
+        custom_data: dict[str, str] | None = None,
     ) -> None:
         if storage not in STORAGES and storage != ROS1:
             msg = f"storage '{storage}' is unknown; choose one of {sorted([*STORAGES, ROS1])}"
@@ -45,6 +51,7 @@ class BagWriter:
         self._writer: Writer | Ros1Writer | None = None
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
+        self.custom_data = dict(custom_data or {})  # metadata.yaml custom_data: written with the bag, at once
 
     def __enter__(self) -> BagWriter:
         self._folder = AtomicFolder(self.path, overwrite=self.overwrite, is_file=self.storage == ROS1)
@@ -65,21 +72,25 @@ class BagWriter:
         writer = Writer(path, version=BAG_VERSION, storage_plugin=STORAGES[self.storage])
         if self.compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in self.custom_data.items():
+            writer.set_custom_data(key, value)
         return writer
 
     def write(self, topic: str, message: Any, timestamp_ns: int) -> None:
+        self.write_raw(topic, message.__msgtype__, serialize(message), timestamp_ns)
+
+    def write_raw(self, topic: str, msgtype: str, raw: bytes | memoryview, timestamp_ns: int) -> None:
+        """One message already serialized as Jazzy CDR, e.g. copied from another bag."""
         assert self._writer is not None, "use BagWriter as a context manager"
-        msgtype = message.__msgtype__
         connection = self._connections.get(topic)
         if connection is None:
             store = get_typestore(Stores.ROS1_NOETIC) if isinstance(self._writer, Ros1Writer) else typestore()
             connection = self._writer.add_connection(topic, msgtype, typestore=store)
             self._connections[topic] = connection
             self.counts[topic] = 0
-        data = serialize(message)
         if isinstance(self._writer, Ros1Writer):  # Jazzy's CDR -> ROS 1 bytes (header.seq 0)
-            data = typestore().cdr_to_ros1(data, msgtype)
-        self._writer.write(connection, timestamp_ns, data)
+            raw = typestore().cdr_to_ros1(bytes(raw), msgtype)
+        self._writer.write(connection, timestamp_ns, raw)
         self.counts[topic] += 1
 
     def __exit__(

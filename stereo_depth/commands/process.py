@@ -14,6 +14,7 @@ from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import add_param_options, add_topic_options, topic_choice
+from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
 from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
@@ -31,9 +32,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
             "input stamps into a new rosbag2."
         ),
     )
-    parser.add_argument("in_bag", type=Path, metavar="IN_BAG")
-    parser.add_argument("out_bag", type=Path, metavar="OUT_BAG")
+    parser.add_argument(
+        "paths",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="IN_BAG OUT_BAG; or, with --out-dir DIR, any number of bags and folders searched for bags",
+    )
     add_process_options(parser)
+    add_fleet_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -190,11 +197,15 @@ def run(args: argparse.Namespace) -> int:
     warn_unknown_file_keys(args)
     options = options_from(args)
     interrupt_on_sigterm()
+    if args.out_dir is not None:
+        return run_many(args, params, options)
+    check_single_bag_options(args)
+    if len(args.paths) != 2:
+        msg = f"process takes IN_BAG OUT_BAG, or inputs with --out-dir DIR; got {len(args.paths)} paths"
+        raise ParameterError(msg)
+    args.in_bag, args.out_bag = args.paths
     summary = process_bag(args.in_bag, args.out_bag, params, options)
     for line in summary.lines():
         print(line)
     print(f"wrote {args.out_bag} ({', '.join(summary.topics)})")
-    if summary.frames_out == 0:
-        print("ERROR: no frame was processed; see the reasons above", file=sys.stderr)
-        return 1
     return 0

@@ -136,19 +136,6 @@ def min_image_size(params: StereoParams) -> tuple[int, int]:
     return width, params.correlation_window_size + 1
 
 
-def valid_window(width: int, height: int, params: StereoParams) -> tuple[int, int, int, int]:
-    """(x, y, width, height) of the pixels a window matcher can fill: DisparityImage.valid_window.
-
-    Columns left of min_disparity + disparity_range - 1 have no partner in the right image and half
-    a window is lost on every border (cv2.getValidDisparityROI's arithmetic).
-    """
-    whole = (0, 0, width, height)
-    x, y, w, h = cv2.getValidDisparityROI(
-        whole, whole, params.min_disparity, params.disparity_range, params.correlation_window_size
-    )
-    return int(x), int(y), int(w), int(h)
-
-
 class CensusSGMMatcher:
     """Our own core (census cost, 8-path semi-global aggregation, LR check, sub-pixel, confidence).
 

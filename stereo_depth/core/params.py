@@ -15,6 +15,9 @@ from typing import Any
 from stereo_depth.errors import ParameterError
 
 SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
+SGBM_COST_MAX = 32767  # OpenCV SGBM's path costs are int16
+CENSUS_BITS = 62  # census_sgm's 7x9 census: the largest Hamming cost of one pixel
+CENSUS_P2_PER_BIT = 32  # census_sgm's P2 limit, in units of the largest matching cost (see census_sgm.cost_shift)
 OUTPUT_SIZES = ("full", "processed")  # downsample_output choices
 
 
@@ -124,10 +127,55 @@ class StereoParams:
             value = getattr(self, f.name)
             if spec.get("min") is not None and not spec["min"] <= value <= spec["max"]:
                 checks.append((False, f"{f.name} {value} is outside [{spec['min']}, {spec['max']}]"))
+        checks += self._cost_limits()  # after the ranges: those reasons come first
         for ok, reason in checks:
             if not ok:
                 raise ParameterError(reason)
         return self
+
+    def _cost_limits(self) -> list[tuple[bool, str]]:
+        """Settings each matcher's fixed-width arithmetic cannot hold, refused rather than silently wrapped.
+
+        Measured on Middlebury Cones (test/test_core_accuracy.py sweeps every range's corners): past
+        these limits OpenCV returns no or wrong disparities, or crashes the process.
+        """
+        window = self.correlation_window_size
+        if self.matcher == "census_sgm":
+            p2_limit = CENSUS_P2_PER_BIT * CENSUS_BITS * window * window
+            return [
+                (
+                    p2_limit >= self.P2,  # (ruff reads the upper-case P2 as a constant)
+                    f"P2 {self.P2:g} is above what census_sgm can honour with correlation_window_size {window}: "
+                    f"at most {p2_limit} ({CENSUS_P2_PER_BIT} x {CENSUS_BITS} census bits x window area); "
+                    "its 8-bit path costs would keep under 4 levels of matching cost beside such a P2",
+                )
+            ]
+        fixed_lo, fixed_hi = (self.min_disparity - 1) * 16, (self.min_disparity + self.disparity_range) * 16
+        checks = [
+            (
+                fixed_lo >= -32768 and fixed_hi <= 32767,
+                f"min_disparity {self.min_disparity} with disparity_range {self.disparity_range} leaves OpenCV's "
+                "16-bit disparity (1/16 px steps, -2048..2047 px, one step below min_disparity for 'invalid'); "
+                "keep min_disparity - 1 >= -2048 and min_disparity + disparity_range <= 2047",
+            )
+        ]
+        if self.matcher == "sgbm":
+            pixel_cost = 2 * self.prefilter_cap + 64  # Birchfield-Tomasi on the prefiltered + the raw image
+            worst = pixel_cost * window * window + round(self.P2)
+            checks += [
+                (
+                    worst <= SGBM_COST_MAX,
+                    f"sgbm keeps costs in 16 bits: correlation_window_size {window} (x{pixel_cost} per pixel with "
+                    f"prefilter_cap {self.prefilter_cap}) plus P2 {self.P2:g} reaches {worst} > {SGBM_COST_MAX}; "
+                    "use a smaller window, P2 or prefilter_cap",
+                ),
+                (
+                    self.uniqueness_ratio < 100,
+                    f"uniqueness_ratio {self.uniqueness_ratio:g} must be below 100 for sgbm "
+                    "(100 rejects every pixel, and SGBM_3WAY stops the process with a floating-point exception)",
+                ),
+            ]
+        return checks
 
 
 # stereo_image_proc's defaults exactly (Jazzy disparity_node), for drop-in comparisons.

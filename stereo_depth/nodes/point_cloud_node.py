@@ -16,8 +16,8 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import disparity_to_depth
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
-from stereo_depth.frames import Geometry, geometry_outputs
-from stereo_depth.messages import CloudBuffer, disparity_from_msg
+from stereo_depth.frames import Geometry, OutputState, geometry_outputs
+from stereo_depth.messages import disparity_from_msg, stamp_to_ns
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -37,7 +37,7 @@ class PointCloudNode(StereoIONode):
         super().__init__("point_cloud_node")
         self.pipeline = StereoPipeline()  # only its calibration and ray caches are used here
         self._points = self.output(PointCloud2, "points2")
-        self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
+        self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert self.pipeline is not None
@@ -49,11 +49,14 @@ class PointCloudNode(StereoIONode):
         self._check_sizes(image.shape[:2], disparity.shape, camera)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
+        stamp_ns = stamp_to_ns(image_msg.header.stamp)
+        if not self._state.cloud_rate.due(stamp_ns, settings.output.points_max_rate):
+            return stages
         start = time.perf_counter()
         depth = disparity_to_depth(disparity, camera, offset_adjusted=True)
-        geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), image)
+        geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), image, camera)
         output = settings.output
-        cloud = geometry_outputs(RCLPY_TYPES, image_msg.header, geometry, output, ("points2",), self._cloud_buffer)
+        cloud = geometry_outputs(RCLPY_TYPES, image_msg.header, geometry, output, ("points2",), self._state)
         timed(stages, "points", start)
         start = time.perf_counter()
         self._points.publish(cloud["points2"])

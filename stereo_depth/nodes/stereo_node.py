@@ -30,12 +30,12 @@ from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     IMAGE_OUTPUTS,
     OutputOptions,
+    OutputState,
     StereoFrame,
     geometry_outputs,
     image_outputs,
     result_geometry,
 )
-from stereo_depth.messages import CloudBuffer
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -47,6 +47,7 @@ OUTPUT_TYPES = {
     "disparity": DisparityImage,
     "confidence": Image,
     "depth": Image,
+    "depth/camera_info": CameraInfo,
     "points2": PointCloud2,
 }
 # the publish_* parameter that switches each output on or off
@@ -56,6 +57,7 @@ SWITCHES = {
     "disparity": "publish_disparity",
     "confidence": "publish_confidence",
     "depth": "publish_depth",
+    "depth/camera_info": "publish_depth",
     "points2": "publish_points",
 }
 
@@ -74,6 +76,7 @@ class StereoNode(StereoIONode):
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,
         *CLOUD_OPTIONS,
+        "depth_encoding",
         "publish_rectified",
         "publish_disparity",
         "publish_depth",
@@ -89,7 +92,7 @@ class StereoNode(StereoIONode):
     def __init__(self) -> None:
         super().__init__("stereo_node")
         self._output_publishers = {name: self.output(msg_type, name) for name, msg_type in OUTPUT_TYPES.items()}
-        self._cloud_buffer = CloudBuffer()  # reused frame to frame: publish() serializes before returning
+        self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
         # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
         self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
         self._check_idle = threading.Event()
@@ -113,7 +116,9 @@ class StereoNode(StereoIONode):
             self._publish(image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, wanted))
             timed(stages, "publish", start)
             self._maybe_check_calibration(frame.stamp_ns, result, options)
-            wanted = self._wanted(GEOMETRY_OUTPUTS, options)
+            wanted = self._state.cloud_rate.wanted(
+                self._wanted(GEOMETRY_OUTPUTS, options), frame.stamp_ns, settings.output
+            )
             if not wanted:
                 return {**result.timings_ms, **stages}
             self._geometry.submit((frame, result, stages, settings.output, wanted))
@@ -131,8 +136,8 @@ class StereoNode(StereoIONode):
         def work() -> None:
             assert self.pipeline is not None
             start = time.perf_counter()
-            geometry = result_geometry(self.pipeline, result)
-            messages = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, wanted, self._cloud_buffer)
+            geometry = result_geometry(self.pipeline, frame, result)
+            messages = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, wanted, self._state)
             timed(stages, "points", start)
             start = time.perf_counter()
             self._publish(messages)

@@ -1,0 +1,24 @@
+"""`stereo-depth compile`: build the census_sgm core's machine code ahead, so no first frame waits for it.
+
+numba compiles the core on its first use (~30 s once per install, cached afterwards). Run this once after
+installing (or in a robot image's build step); it prints where the cache went.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    parser = sub.add_parser("compile", help="compile the census_sgm core now (~30 s once), not on a first frame")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from stereo_depth.core.census_sgm import compile_kernels
+
+    start = time.perf_counter()
+    cache = compile_kernels()
+    print(f"census_sgm core ready in {time.perf_counter() - start:.1f} s; numba cache: {cache}")
+    return 0

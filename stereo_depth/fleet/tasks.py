@@ -1,0 +1,101 @@
+"""What one worker runs: a bag, or one time window of a bag, through `process_bag`.
+
+A task never raises for a bad bag: the error comes back as text in its result, so one damaged bag
+cannot stop the others. Only an interruption (Ctrl-C, a cancelled task) propagates, after
+`process_bag` has removed its half-written output.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stereo_depth.bag.process import ProcessOptions, process_bag
+from stereo_depth.bag.reader import TimeWindow
+from stereo_depth.core.matching import ONE_CORE_SGBM_MODES, create_matcher, min_image_size
+from stereo_depth.core.params import StereoParams
+from stereo_depth.errors import StereoDepthError
+
+RECORD_KEY = "stereo_depth.process"  # metadata.yaml custom_data key holding what made the output
+
+
+@dataclass(frozen=True)
+class Task:
+    bag: str  # the output name: which bag this task belongs to
+    source: Path
+    output: Path  # the bag's output, or its shard's part bag
+    params: StereoParams
+    options: ProcessOptions
+    shard: int = 0
+    window: TimeWindow | None = None
+
+
+@dataclass
+class TaskResult:
+    bag: str
+    shard: int = 0
+    frames_in: int = 0
+    frames_out: int = 0
+    seconds: float = 0.0
+    error: str | None = None
+    first_ns: int | None = None
+    handoff_ns: int | None = None
+
+
+def matcher_cores(params: StereoParams) -> int:
+    """Cores one frame keeps busy: OpenCV SGBM in its one-core modes is matched as two halves at once
+    (matching.StripSGBM); every other matcher here runs one frame on one core."""
+    return 2 if params.matcher == "sgbm" and params.sgbm_mode in ONE_CORE_SGBM_MODES else 1
+
+
+def record(params: StereoParams, options: ProcessOptions) -> str:
+    """Everything that changes an output's messages, as the JSON stored in it: an output made with
+    the same record is complete and current, so a rerun skips its input."""
+    made_with = {
+        "params": dataclasses.asdict(params),
+        "sync": dataclasses.asdict(options.sync),
+        "namespace": options.namespace,
+        "topics": dataclasses.asdict(options.topics) if options.topics is not None else None,
+        "outputs": list(options.outputs),
+        "output": dataclasses.asdict(options.output),
+        "storage": options.storage,
+        "compress": options.compress,
+    }
+    return json.dumps(made_with, sort_keys=True, default=_json_value)
+
+
+def _json_value(value: object) -> object:
+    """Arrays (a calibration file's K, D, R, P) as lists; anything else JSON lacks as its text."""
+    return value.tolist() if isinstance(value, np.ndarray) else str(value)
+
+
+@functools.cache
+def warm_up(params: StereoParams) -> None:
+    """Compile (or load from numba's cache) the census core once per worker process, not per bag."""
+    if params.matcher != "census_sgm":
+        return
+    width, height = min_image_size(params)
+    image = np.zeros((max(height, 16), width + 16), np.uint8)
+    create_matcher(params).compute(image, image)
+
+
+def run_task(task: Task) -> TaskResult:
+    warm_up(task.params)
+    result = TaskResult(task.bag, task.shard)
+    start = time.perf_counter()
+    options = dataclasses.replace(task.options, window=task.window, progress=False)
+    try:
+        summary = process_bag(task.source, task.output, task.params, options)
+    except Exception as exc:  # any failure of one bag is that bag's result, not the run's
+        result.error = str(exc) if isinstance(exc, StereoDepthError) else f"{type(exc).__name__}: {exc}"
+    else:
+        result.frames_in, result.frames_out = summary.left_images, summary.frames_out
+        result.first_ns, result.handoff_ns = summary.read.first_ns, summary.read.handoff_ns
+    result.seconds = time.perf_counter() - start
+    return result

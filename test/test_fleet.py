@@ -1,0 +1,250 @@
+"""`stereo-depth process IN... --out-dir DIR`: many bags on Ray or local workers, resumable, and long
+bags cut into shards, each output equal message for message to the one-bag run of the same input.
+
+One `ray start --head` process on 127.0.0.1 serves the tests that join a cluster by address; one test
+starts its own local instance as `--ray` alone does.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from stereo_depth.bag.recording import open_reader
+from stereo_depth.bag.writer import BagWriter
+from stereo_depth.cli import main
+
+from conftest import SCENES
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+FAST = ["--profile", "fast", "--set", "disparity_range=16", "--outputs", "disparity", "depth"]
+GOOD = ("euroc_raw", "middlebury", "artl")
+
+Message = tuple[str, str, int, bytes]
+
+
+def messages(bag: Path) -> list[Message]:
+    """(topic, type, log time, CDR bytes) of every message, in the order the bag holds them."""
+    reader = open_reader(bag)
+    try:
+        return [(c.topic, c.msgtype, t, bytes(raw)) for c, t, raw in reader.messages(connections=reader.connections)]
+    finally:
+        reader.close()
+
+
+def hidden_leftovers(out_dir: Path) -> list[Path]:
+    return [p for p in out_dir.iterdir() if p.name.startswith(".")]
+
+
+def make_bag(out: Path, *sources: Path, rate: float = 10.0) -> Path:
+    assert main(["make-bag", *map(str, sources), str(out), "--rate", str(rate)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder of three real bags and one whose compressed chunk is zeroed part-way (it opens, then fails)."""
+    folder = tmp_path_factory.mktemp("inputs")
+    for name in GOOD[:2]:
+        shutil.copytree(BAGS / name, folder / name)
+    make_bag(folder / "artl", *[SCENES / "artl"] * 3)
+    shutil.copytree(BAGS / "euroc_raw", folder / "damaged")
+    storage = folder / "damaged" / "euroc_raw.mcap"
+    data = bytearray(storage.read_bytes())
+    data[int(len(data) * 0.4) : int(len(data) * 0.4) + 4096] = bytes(4096)
+    storage.write_bytes(bytes(data))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def one_bag_outputs(inputs: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[Message]]:
+    """Each good input through the one-bag form: what every fleet output must equal."""
+    out = tmp_path_factory.mktemp("single")
+    for name in GOOD:
+        assert main(["process", str(inputs / name), str(out / name), *FAST]) == 0
+    return {name: messages(out / name) for name in GOOD}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module", autouse=True)
+def worker_settings() -> Iterator[None]:
+    """Ray on loopback for tests: no token file written to ~/.ray (which a later head would then
+    demand), no usage statistics. Workers (Ray's and the local pool's inherit this environment) match
+    on one thread each, so two of them leave the test files running beside this one some CPU."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RAY_AUTH_MODE", "disabled")
+        patch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+        patch.setenv("OPENCV_FOR_THREADS_NUM", "1")
+        patch.setenv("NUMBA_NUM_THREADS", "1")
+        yield
+
+
+@pytest.fixture(scope="module")
+def ray_head(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A Ray cluster head as `ray start --head` makes one, on loopback; stopped with its processes after."""
+    pytest.importorskip("ray")
+    port = free_port()
+    temp_dir = Path(f"/tmp/ray_sd_{os.getpid()}")  # short: Ray's socket paths must fit 107 bytes
+    env = dict(os.environ)
+    ray = Path(sys.executable).parent / "ray"
+    command = [str(ray), "start", "--head", "--block", f"--port={port}", "--node-ip-address=127.0.0.1"]
+    command += ["--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp_dir}"]
+    log = tmp_path_factory.mktemp("ray") / "head.log"
+    with log.open("w") as sink:
+        head = subprocess.Popen(command, env=env, stdout=sink, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while "block forever" not in log.read_text():
+            assert head.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.2)
+        yield f"127.0.0.1:{port}"
+    finally:
+        head.send_signal(signal.SIGTERM)  # --block: the head stops every process it started
+        head.wait(timeout=30)
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def run_fleet(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, list[str], str]:
+    """Exit code, ERROR lines and stdout of one fleet run in this process."""
+    code = main(["process", *args, *FAST])
+    captured = capsys.readouterr()
+    return code, [line for line in captured.err.splitlines() if line.startswith("ERROR:")], captured.out
+
+
+def test_bags_on_a_ray_cluster_equal_one_bag_runs_and_a_damaged_one_is_reported(
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    inputs: Path,
+    one_bag_outputs: dict[str, list[Message]],
+    ray_head: str,
+) -> None:
+    out, report = tmp_path / "out", tmp_path / "report.json"
+    code, errors, _ = run_fleet(capsys, str(inputs), "--out-dir", str(out), "--ray", ray_head, "--report", str(report))
+    assert code == 1
+    assert len(errors) == 1 and str(inputs / "damaged") in errors[0] and "damaged" in errors[0], errors
+    assert sorted(p.name for p in out.iterdir()) == sorted(GOOD)  # no partial output, no hidden folder
+    for name in GOOD:
+        assert messages(out / name) == one_bag_outputs[name], name
+    bags = {Path(b["input"]).name: b for b in json.loads(report.read_text())["bags"]}
+    assert bags["damaged"]["status"] == "failed" and "cannot read messages" in bags["damaged"]["error"]
+    for name in GOOD:
+        frames = len(one_bag_outputs[name]) // 2  # two outputs per frame
+        assert bags[name]["status"] == "done" and bags[name]["frames_out"] == frames and bags[name]["error"] is None
+
+    # A second run (on local workers this time) skips what is finished, leaving it untouched.
+    stamps = {name: (out / name / "metadata.yaml").stat().st_mtime_ns for name in GOOD}
+    code, errors, printed = run_fleet(
+        capsys, str(inputs), "--out-dir", str(out), "--jobs", "1", "--report", str(report)
+    )
+    assert code == 1 and len(errors) == 1 and "damaged" in errors[0]
+    assert "3 skipped" in printed
+    assert {name: (out / name / "metadata.yaml").stat().st_mtime_ns for name in GOOD} == stamps
+    assert {b["status"] for b in json.loads(report.read_text())["bags"]} == {"skipped", "failed"}
+
+    # Other parameters are not "finished": the run refuses to replace them unless told to.
+    other = ("--set", "correlation_window_size=5")
+    code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), *other)
+    assert code == 1 and len(errors) == 1 and "made with other parameters" in errors[0] and "--overwrite" in errors[0]
+    assert messages(out / "artl") == one_bag_outputs["artl"]
+    code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), *other, "--overwrite")
+    assert code == 0, errors
+    assert messages(out / "artl") != one_bag_outputs["artl"] and hidden_leftovers(out) == []
+
+
+@pytest.fixture(scope="module")
+def long_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """40 frames at 10 Hz whose pairing is hard at 1 s borders: the right camera's messages recorded
+    150 ms late (sets complete after a border), the right image before the 1 s border and the left
+    image on the 2 s border missing (one pass leaves those two frames unpaired)."""
+    plain = make_bag(tmp_path_factory.mktemp("plain") / "plain", *[SCENES / "artl"] * 40)
+    start = min(t for _, _, t, _ in messages(plain))
+    records = []
+    for topic, msgtype, stamp, raw in messages(plain):
+        frame = round((stamp - start) / 1e8)
+        if (frame == 9 and topic.endswith("right/image_raw")) or (frame == 20 and topic.endswith("left/image_raw")):
+            continue
+        records.append((stamp + (150_000_000 if "/right/" in topic else 0), topic, msgtype, raw))
+    bag = tmp_path_factory.mktemp("long") / "long"  # alone in its folder
+    with BagWriter(bag, compress=False) as writer:
+        for log_time, topic, msgtype, raw in sorted(records, key=lambda r: r[0]):
+            writer.write_raw(topic, msgtype, raw, log_time)
+    return bag
+
+
+@pytest.fixture(scope="module")
+def long_one_pass(long_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> list[Message]:
+    one_pass = tmp_path_factory.mktemp("one_pass") / "long"
+    assert main(["process", str(long_bag), str(one_pass), *FAST]) == 0
+    expected = messages(one_pass)
+    assert len(expected) == 2 * 38  # two frames have no partner
+    return expected
+
+
+def test_a_sharded_long_bag_equals_one_pass_on_a_local_ray_instance(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, long_bag: Path, long_one_pass: list[Message]
+) -> None:
+    pytest.importorskip("ray")
+
+    out, report = tmp_path / "out", tmp_path / "report.json"
+    code, errors, _ = run_fleet(
+        capsys, str(long_bag), "--out-dir", str(out), "--shard-seconds", "1", "--ray", "--report", str(report)
+    )
+    assert code == 0, errors
+    assert messages(out / "long") == long_one_pass
+    (bag,) = json.loads(report.read_text())["bags"]
+    assert bag["shards"] == 5 and bag["frames_in"] == 39 and bag["frames_out"] == 38
+    assert hidden_leftovers(out) == []
+
+
+def test_shards_on_local_workers_equal_one_pass_and_the_output_folder_is_not_an_input(
+    capsys: pytest.CaptureFixture[str], long_bag: Path, long_one_pass: list[Message]
+) -> None:
+    out = long_bag.parent / "fleet_out"  # inside the input folder: its bags are outputs, not inputs
+    for _ in range(2):  # the second run finds the first one's output and skips it
+        code, errors, printed = run_fleet(
+            capsys, str(long_bag.parent), "--out-dir", str(out), "--jobs", "2", "--shard-seconds", "0.7"
+        )
+        assert code == 0, errors
+    assert "1 skipped" in printed
+    assert messages(out / "long") == long_one_pass
+
+
+def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(tmp_path: Path, long_bag: Path) -> None:
+    """Ctrl-C while two workers write shards: exit 130, the output folder holds nothing."""
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "stereo_depth.cli", "process", str(long_bag), "--out-dir", str(out)]
+    command += ["--jobs", "2", "--shard-seconds", "0.5", "--profile", "quality"]
+    run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)  # environment: worker_settings
+    assert run.stderr is not None
+    deadline = time.monotonic() + 60
+    while not any(p.name.startswith(".0") for p in (out / ".long.shards").glob("*")):  # a shard is being written
+        assert run.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    run.send_signal(signal.SIGINT)
+    assert run.wait(timeout=60) == 130, run.stderr.read()
+    assert "ERROR: interrupted" in run.stderr.read()
+    assert list(out.iterdir()) == []
+
+
+def test_missing_ray_is_one_clear_error(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
+    code, errors, _ = run_fleet(capsys, str(BAGS / "middlebury"), "--out-dir", str(tmp_path / "out"), "--ray")
+    assert code == 1 and len(errors) == 1 and "pip install" in errors[0] and "ray" in errors[0]
+    assert not (tmp_path / "out" / "middlebury").exists()
