@@ -59,10 +59,11 @@ class NodeOptions:
         default=30, metadata=_spec("Run the calibration check on one frame in this many", 1, 100000, 1)
     )
     max_waiting_frames: int = field(
-        default=1,
+        default=3,
         metadata=_spec(
             "Complete input sets kept while one is processed; one more drops the oldest (counted in "
-            "diagnostics). 1: always the newest, lowest latency; more: no frame lost to a busy machine's hiccups",
+            "diagnostics). 3: no frame lost to DDS delivering large images in bursts or to a busy machine's "
+            "hiccups; 1: always the newest, lowest latency",
             1,
             100,
             1,

@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 from ros_helpers import NodeProcess, RosHarness, wait_until
 
+from stereo_depth.settings import NodeOptions
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from soak import Soak, rss_mb
 
@@ -64,7 +66,7 @@ def test_a_run_at_a_sustainable_rate_loses_nothing_and_grows_no_memory(
         window = soak.window(soak.run(SUSTAINABLE_HZ, frames=FRAMES), settle_s=10.0)
         growth = rss_mb(node.process.pid) - rss_before
     finally:
-        ros.set_parameters(fqn, max_waiting_frames=1)
+        ros.set_parameters(fqn, max_waiting_frames=NodeOptions().max_waiting_frames)
     print(f"\n{FRAMES} frames {WIDTH}x{HEIGHT} at {SUSTAINABLE_HZ} Hz: {window.line()}  rss growth {growth:+.1f} MB")
     assert window.sent == FRAMES
     assert window.lost == 0, window.line()
