@@ -135,10 +135,10 @@ class StereoNode(StereoIONode):
 
         def work() -> None:
             assert self.pipeline is not None
+            geometry = result_geometry(self.pipeline, frame, result)  # times "depth"
             start = time.perf_counter()
-            geometry = result_geometry(self.pipeline, frame, result)
             messages = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, wanted, self._state)
-            timed(stages, "points", start)
+            timed(stages, "points", start)  # the depth image and points2 messages, as `process` times it
             start = time.perf_counter()
             self._publish(messages)
             timed(stages, "publish_geometry", start)
