@@ -616,28 +616,18 @@ def compile_kernels() -> str:
     NUMBA_CACHE_DIR (or numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
-    disparity, _ = census_sgm(
-        image,
-        image,
-        min_disparity=0,
-        num_disparities=16,
-        window_size=1,
-        P1=20,
-        P2=200,
-        uniqueness_ratio=3,
-        disp12_max_diff=1,
-    )
-    census_sgm(
-        image,
-        image,
-        min_disparity=0,
-        num_disparities=16,
-        window_size=3,
-        P1=20,
-        P2=200,
-        uniqueness_ratio=3,
-        disp12_max_diff=1,
-    )
+    for window_size in (1, 3):  # the 1-pixel window takes its own cost path
+        disparity, _ = census_sgm(
+            image,
+            image,
+            min_disparity=0,
+            num_disparities=16,
+            window_size=window_size,
+            P1=20,
+            P2=200,
+            uniqueness_ratio=3,
+            disp12_max_diff=1,
+        )
     fill_holes(disparity, image)
     fill_holes(disparity, image, scanline=False)
     return str(globals()["_census"]._cache._cache_path)
