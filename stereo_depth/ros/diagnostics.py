@@ -251,7 +251,7 @@ class NodeDiagnostics:
             for t, m in self.inputs.items()
         }
         counts["matching slower than the input (dropped frames)"] = self.dropped
-        counts["depth/points2 stage slower than the input (dropped clouds; see publish_points time)"] = (
+        counts["depth/points2 stage slower than the input (dropped clouds; see the publish points2 time)"] = (
             self.dropped_clouds
         )
         grown = {what: n - self._reported.get(what, 0) for what, n in counts.items()}
