@@ -54,3 +54,21 @@ def test_colcon_install_has_ament_index_marker_launch_and_config(install_tree: P
     assert (share / "stereo_depth" / "package.xml").is_file()
     assert (share / "stereo_depth" / "launch" / "stereo_depth.launch.py").is_file()
     assert (share / "stereo_depth" / "config" / "stereo_depth.yaml").is_file()
+
+
+@pytest.mark.parametrize("exported", ["", "/my/profile.xml"], ids=["no profile", "the user's profile"])
+def test_sourcing_the_workspace_exports_the_large_message_profile_unless_one_is_set(
+    install_tree: Path, exported: str
+) -> None:
+    """`source install/setup.sh` gives a driver, RViz or Nav2 started from that shell our Fast DDS profile
+    (colcon.pkg's hook), and never replaces one the user exported."""
+    env = {"HOME": os.environ.get("HOME", "/tmp"), "PATH": "/usr/bin:/bin"}
+    if exported:
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = exported
+    script = f'. "{install_tree.parent / "local_setup.sh"}" && echo "$FASTRTPS_DEFAULT_PROFILES_FILE"'
+    shown = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True).stdout.strip()
+    if exported:
+        assert shown == exported
+    else:
+        assert shown == str(install_tree / "share" / "stereo_depth" / "config" / "fastdds_large_images.xml")
+        assert Path(shown).is_file()
