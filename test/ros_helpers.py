@@ -10,7 +10,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -125,6 +126,16 @@ class RosHarness:
 
     def publisher(self, msg_type: Any, topic: str, reliability: ReliabilityPolicy = ReliabilityPolicy.RELIABLE) -> Any:
         return self.node.create_publisher(msg_type, topic, QoSProfile(depth=5, reliability=reliability))
+
+    @contextmanager
+    def running(self, processes: Iterable[NodeProcess]) -> Iterator[None]:
+        """Module fixtures' shape: the nodes are up for the block, then stopped, each exiting cleanly."""
+        processes = list(processes)
+        self.wait_for_nodes(processes)
+        try:
+            yield
+        finally:
+            stop_all(processes)
 
     def wait_for_nodes(self, processes: Iterable[NodeProcess]) -> None:
         for process in processes:

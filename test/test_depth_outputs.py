@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from ros_helpers import NodeProcess, RosHarness, stop_all, wait_until
+from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from test_nodes import Pair, StereoInput, euroc_pair
@@ -40,7 +40,11 @@ def euroc() -> Pair:
 @pytest.fixture(scope="module")
 def nav(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     node = NodeProcess("stereo_node", NS, ros_env, tmp_path_factory.mktemp("nav_logs"))
-    ros.wait_for_nodes([node])
+    with ros.running([node]):
+        yield nav_outputs(ros, node)
+
+
+def nav_outputs(ros: RosHarness, node: NodeProcess) -> dict[str, Any]:
     outputs = {
         "disparity": ros.collector(DisparityImage, f"{NS}/disparity"),
         "depth": ros.collector(Image, f"{NS}/depth"),
@@ -51,8 +55,7 @@ def nav(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempP
         wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
     inputs = StereoInput(ros, NS)
     inputs.wait_matched()
-    yield {"node": node, "inputs": inputs, **outputs}
-    stop_all([node])
+    return {"node": node, "inputs": inputs, **outputs}
 
 
 def send(ros: RosHarness, nav: dict[str, Any], pair: Pair, wanted: tuple[str, ...], **options: Any) -> dict[str, Any]:

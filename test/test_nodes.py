@@ -137,9 +137,8 @@ def nodes(
             "point_cloud_node", "/split", ros_env, logs, ["-r", "left/image_rect_color:=left/image_rect"]
         ),
     }
-    ros.wait_for_nodes(processes.values())
-    yield processes
-    stop_all(processes.values())
+    with ros.running(processes.values()):
+        yield processes
 
 
 @pytest.fixture(scope="module")

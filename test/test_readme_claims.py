@@ -28,7 +28,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.event_handler import PublisherEventCallbacks, QoSOfferedIncompatibleQoSInfo
 from rclpy.qos import QoSPolicyKind, ReliabilityPolicy, qos_profile_sensor_data
-from ros_helpers import Collector, NodeProcess, RosHarness, stop_all, wait_until
+from ros_helpers import Collector, NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from test_nodes import FRAME, Pair, StereoInput
@@ -121,9 +121,8 @@ def processes(
         "stereo": NodeProcess("stereo_node", NS, ros_env, logs),
         "rectify": NodeProcess("rectify_node", f"{NS}/rect", ros_env, logs),
     }
-    ros.wait_for_nodes(started.values())
-    yield started
-    stop_all(started.values())  # asserts clean exits
+    with ros.running(started.values()):  # asserts clean exits at the end
+        yield started
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import NodeProcess, RosHarness, stop_all, wait_until
+from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CompressedImage
 from stereo_msgs.msg import DisparityImage
 
@@ -77,9 +77,8 @@ def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.Temp
         arg for side in ("left", "right") for arg in ("-p", f"{side}_camera_info_url:=file://{folder}/{side}.yaml")
     ]
     process = NodeProcess("stereo_node", NS, env, folder, args)
-    ros.wait_for_nodes([process])
-    yield process
-    stop_all([process])
+    with ros.running([process]):
+        yield process
 
 
 def test_compressed_images_and_camera_info_files_give_the_offline_disparity(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ros_helpers import TIMEOUT_S, NodeProcess, RosHarness, stop_all, wait_until
+from ros_helpers import TIMEOUT_S, NodeProcess, RosHarness, wait_until
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
@@ -53,9 +53,8 @@ def stereo_node(
     ros: RosHarness, large_images_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[NodeProcess]:
     node = NodeProcess("stereo_node", NS, large_images_env, tmp_path_factory.mktemp("replay_logs"))
-    ros.wait_for_nodes([node])
-    yield node
-    stop_all([node])
+    with ros.running([node]):
+        yield node
 
 
 def test_replay_sends_every_message_unchanged_with_remaps(ros: RosHarness, ros_env: dict[str, str]) -> None:
