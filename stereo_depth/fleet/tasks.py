@@ -54,20 +54,16 @@ def matcher_cores(params: StereoParams) -> int:
     return 2 if params.matcher == "sgbm" and params.sgbm_mode in ONE_CORE_SGBM_MODES else 1
 
 
+# ProcessOptions fields that change where and how a run goes, not the output bag's messages. Every other
+# field, including any added later, is part of an output's record: a rerun redoes rather than wrongly skips.
+NOT_IN_RECORD = frozenset({"overwrite", "png_dir", "ply_dir", "ply_frames", "window", "custom_data", "progress"})
+
+
 def record(params: StereoParams, options: ProcessOptions) -> str:
     """Everything that changes an output's messages, as the JSON stored in it: an output made with
     the same record is complete and current, so a rerun skips its input."""
-    made_with = {
-        "params": dataclasses.asdict(params),
-        "sync": dataclasses.asdict(options.sync),
-        "namespace": options.namespace,
-        "topics": dataclasses.asdict(options.topics) if options.topics is not None else None,
-        "outputs": list(options.outputs),
-        "output": dataclasses.asdict(options.output),
-        "storage": options.storage,
-        "compress": options.compress,
-    }
-    return json.dumps(made_with, sort_keys=True, default=_json_value)
+    made_with = {k: v for k, v in dataclasses.asdict(options).items() if k not in NOT_IN_RECORD}
+    return json.dumps({"params": dataclasses.asdict(params), **made_with}, sort_keys=True, default=_json_value)
 
 
 def _json_value(value: object) -> object:
