@@ -71,7 +71,7 @@ class StereoNode(StereoIONode):
     )
     CALIBRATIONS = ((1, 0), (3, 2))
     IMAGE_INPUTS = (0, 2)
-    CAMERA_INFO_FILES = ((1, "left_camera_info_url", 0), (3, "right_camera_info_url", 2))
+    CAMERA_INFO_FILES = ((1, "left_camera_info_url"), (3, "right_camera_info_url"))
     OPTIONS = (
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,

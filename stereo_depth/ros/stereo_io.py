@@ -114,8 +114,8 @@ class StereoIONode(Node):
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
     CALIBRATIONS: Sequence[tuple[int, int]] = ()  # (camera_info input, the input whose stamp it carries)
     IMAGE_INPUTS: Sequence[int] = ()  # inputs that image_transport:=compressed reads from <topic>/compressed
-    # (camera_info input, the option naming a file that replaces it, the image input it belongs to)
-    CAMERA_INFO_FILES: Sequence[tuple[int, str, int]] = ()
+    # (camera_info input, the option naming a file that replaces it; its image input is in CALIBRATIONS)
+    CAMERA_INFO_FILES: Sequence[tuple[int, str]] = ()
     OPTIONS: Sequence[str] = ()  # NodeOptions fields this node declares
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
     MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
@@ -127,7 +127,7 @@ class StereoIONode(Node):
         )
         settings = self.parameters.settings
         inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
-        self._info_files = camera_info_files(self.CAMERA_INFO_FILES, settings.options)
+        self._info_files = camera_info_files(self.CAMERA_INFO_FILES, dict(self.CALIBRATIONS), settings.options)
         self.topics = [
             self._info_files[index][0] if index in self._info_files else self.resolve_topic_name(topic)
             for index, (topic, _) in enumerate(inputs)
@@ -392,16 +392,16 @@ def input_specs(
 
 
 def camera_info_files(
-    files: Sequence[tuple[int, str, int]], options: NodeOptions
+    files: Sequence[tuple[int, str]], calibrations: dict[int, int], options: NodeOptions
 ) -> dict[int, tuple[str, int, CameraInfo]]:
     """{camera_info input: (url, image input, calibration)} for each *_camera_info_url that is set; a
     file that cannot be read stops the node at start-up with the reason (as a driver would)."""
     out = {}
-    for index, option, image_index in files:
+    for index, option in files:
         url = str(getattr(options, option))
         if url:
             try:
-                out[index] = (url, image_index, read_camera_info_url(url))
+                out[index] = (url, calibrations[index], read_camera_info_url(url))
             except CalibrationError as exc:
                 msg = f"{option}: {exc}"
                 raise CalibrationError(msg) from exc
