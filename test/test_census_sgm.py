@@ -143,17 +143,15 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
     from stereo_depth.core import census_sgm as module
 
     module._kernels()
-    sentinel = np.float32(-1e9)
-    coded = np.where(np.isnan(disp), sentinel, disp).astype(np.float32)
-    out = module._close_gaps(
-        coded,
-        sentinel,
+    coded = np.where(np.isnan(disp), module._HOLE, disp).astype(np.float32)
+    gaps = (
         GAPS["gap_max"],
         np.float32(GAPS["gap_tol"]),
         GAPS["occlusion_margin"],
         GAPS["border_margin"],
+        np.float32(0.2),
     )
-    return np.where(out == sentinel, np.float32(np.nan), out)
+    return module._finish(coded, np.zeros_like(coded), module._HOLE, gaps)
 
 
 @pytest.mark.parametrize("name", SCENES)

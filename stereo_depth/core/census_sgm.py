@@ -41,6 +41,7 @@ _READY: list[bool] = []
 prange = range  # replaced by numba.prange before any kernel is compiled
 
 _HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
+_FIXED_HOLE = np.int16(-32768)  # the same in OpenCV's 1/16 px fixed point
 PATH_COST_MAX = 254  # largest matching cost + 2 x P2 the uint8 path costs hold (see ``cost_shift``)
 
 
@@ -90,8 +91,9 @@ def _kernels() -> None:
 def _census(padded: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     """Census bit string per pixel: bit set where the neighbour is darker than the centre.
 
-    ``padded`` has the image border replicated by (half_h, half_w); looping over x innermost
-    keeps the loop vectorisable.
+    ``padded`` has the image border replicated by (half_h, half_w). Bits are gathered 16 at a
+    time in uint16 words (16 SIMD lanes where uint64 gives 4) and shifted into the uint64 per
+    word; the bit order is the same for both images, which is all a Hamming distance needs.
     """
     h = padded.shape[0] - 2 * half_h
     w = padded.shape[1] - 2 * half_w
@@ -99,13 +101,24 @@ def _census(padded: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     for y in prange(h):
         centre = padded[y + half_h, half_w : half_w + w]
         bits = out[y]
+        word = np.zeros(w, np.uint16)
+        n = 0
         for dy in range(2 * half_h + 1):
             for dx in range(2 * half_w + 1):
                 if dy == half_h and dx == half_w:
                     continue
                 row = padded[y + dy, dx : dx + w]
                 for x in range(w):
-                    bits[x] = (bits[x] << np.uint64(1)) | np.uint64(row[x] < centre[x])
+                    word[x] = (word[x] << np.uint16(1)) | np.uint16(row[x] < centre[x])
+                n += 1
+                if n == 16:
+                    for x in range(w):
+                        bits[x] = (bits[x] << np.uint64(16)) | np.uint64(word[x])
+                        word[x] = 0
+                    n = 0
+        if n > 0:
+            for x in range(w):
+                bits[x] = (bits[x] << np.uint64(16)) | np.uint64(word[x])
     return out
 
 
@@ -177,9 +190,7 @@ def _recur(
 @_kernel(inline=True)
 def _path(
     cost: np.ndarray,  # (w, nd) matching costs C of the row
-    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes (S(p) & keep) + L_r(p)
     x: int,  # p's column
-    keep: np.uint16,  # 0 stores L_r(p) in S (first path over S), 0xFFFF adds it
     buf: np.ndarray,  # flat uint8 path buffers, each nd + 2 long with sentinels at both ends
     i0: int,  # L_r(p - r) is buf[i0 : i0 + nd + 2]
     o0: int,  # out: L_r(p) goes to buf[o0 + 1 : o0 + nd + 1]
@@ -187,15 +198,14 @@ def _path(
     p1: np.uint8,
     p2: np.uint8,
 ) -> np.uint8:
-    """Advance one path by one pixel and add it to S; returns min_d L_r(p).
+    """Advance one path by one pixel; returns min_d L_r(p).
 
-    Shaped for LLVM's vectoriser and for a short per-call set-up, since a call is only nd / 16
-    vector steps: branch-free (``keep`` masks instead of an if), three arrays only (more exceed
-    LLVM's budget of run-time aliasing checks), the path buffers flat with unsigned offsets (no
-    strides, no negative-index wraparound). Cost and S stay 2-D rows indexed by x: flat offsets
-    for them made the right-to-left sweep ~10x slower. A path's first pixel passes a zero
-    predecessor (sentinel ends, minimum 0): the recurrence then gives L_r = C exactly, so path
-    starts need no code of their own.
+    Shaped for LLVM's vectoriser and for a short per-call set-up, since a call is only a few
+    vector steps: branch-free, uint8 only (32 lanes a 256-bit vector; S is summed separately by
+    ``_add_paths``), the path buffers flat with unsigned offsets (no strides, no negative-index
+    wraparound). Cost stays a 2-D row indexed by x: flat offsets for it made the right-to-left
+    sweep ~10x slower. A path's first pixel passes a zero predecessor (sentinel ends, minimum 0):
+    the recurrence then gives L_r = C exactly, so path starts need no code of their own.
     """
     jump = np.uint8(prev_min + p2)
     new_min = np.uint8(0xFF)
@@ -204,8 +214,30 @@ def _path(
         v = _recur(cost[x, k], buf[i], buf[i + np.uint64(1)], buf[i + np.uint64(2)], jump, prev_min, p1)
         buf[np.uint64(o0 + 1 + k)] = v
         new_min = min(new_min, v)
-        acc[x, k] = np.uint16((acc[x, k] & keep) + v)
     return new_min
+
+
+@_kernel(inline=True)
+def _add_paths(
+    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes (S(p) & keep) + the paths' L_r(p)
+    x: int,
+    keep: np.uint16,  # 0 stores the sum in S (the sweep that comes first), 0xFFFF adds it
+    line: np.ndarray,  # the horizontal path's L_r(p) is line[h0 + 1 : h0 + nd + 1]
+    h0: int,
+    state: np.ndarray,  # the vertical / diagonal paths' L_r(p) are state[o0 + j * step + 1 ...], j < ndirs
+    o0: int,
+    step: int,
+    ndirs: int,
+) -> None:
+    """S(p) for one pixel and sweep: one read-modify-write of the uint16 row per pixel, not one per path."""
+    for k in range(acc.shape[1]):
+        total = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
+        acc[x, k] = np.uint16((acc[x, k] & keep) + total)
+    if ndirs == 3:
+        for k in range(acc.shape[1]):
+            a = np.uint16(state[np.uint64(o0 + step + 1 + k)])
+            b = np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
+            acc[x, k] = np.uint16(acc[x, k] + a + b)
 
 
 @_kernel()
@@ -267,13 +299,13 @@ def _sweep(
     state = bufs.reshape(bufs.size)
     line = np.full(3 * n2, bufs[0, 0, 0, 0], np.uint8)  # horizontal path: zero start, then a ping-pong pair
     line[1 : nd + 1] = 0
-    right = np.empty(w, np.uint32)
+    right_cost = np.empty(w, np.uint16)
+    right_k = np.empty(w, np.uint16)
     left_k = np.empty(w, np.int32)
     ratio = np.empty(w, np.float32)
     sub = np.empty(w, np.float32)
     q1 = np.uint8(p1)
-    add = np.uint16(0xFFFF)
-    keep = add if finish else np.uint16(0)
+    keep = np.uint16(0xFFFF) if finish else np.uint16(0)
     x0 = 0 if sy == 1 else w - 1
     for y in range(y0, y1, sy):
         cost, s_row = vol[y], acc[y]
@@ -290,41 +322,21 @@ def _sweep(
             c = np.int64(img[y, x])
             h_p2 = p2_of[abs(c - np.int64(img[y, min(max(x - sy, 0), w - 1)]))]
             h_in = 0 if i == 0 else 2 - (i & 1)
-            h_min = _path(cost, s_row, x, keep, line, h_in * n2, (1 + (i & 1)) * n2, h_min, q1, h_p2)
+            h_out = (1 + (i & 1)) * n2
+            h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
             v_p2 = p2_of[abs(c - np.int64(img[yp, x]))]
-            cur_min[0, s] = _path(
-                cost, s_row, x, add, state, (prev0 + s) * n2, (cur0 + s) * n2, prev_min[0, s], q1, v_p2
-            )
+            cur_min[0, s] = _path(cost, x, state, (prev0 + s) * n2, (cur0 + s) * n2, prev_min[0, s], q1, v_p2)
             if ndirs == 3:
                 sa, sb = s + sy, s - sy  # slots of columns x + 1 and x - 1
                 a_p2 = p2_of[abs(c - np.int64(img[yp, min(x + 1, w - 1)]))]
                 b_p2 = p2_of[abs(c - np.int64(img[yp, max(x - 1, 0)]))]
-                cur_min[1, s] = _path(
-                    cost,
-                    s_row,
-                    x,
-                    add,
-                    state,
-                    (prev0 + span + sa) * n2,
-                    (cur0 + span + s) * n2,
-                    prev_min[1, sa],
-                    q1,
-                    a_p2,
-                )
-                cur_min[2, s] = _path(
-                    cost,
-                    s_row,
-                    x,
-                    add,
-                    state,
-                    (prev0 + 2 * span + sb) * n2,
-                    (cur0 + 2 * span + s) * n2,
-                    prev_min[2, sb],
-                    q1,
-                    b_p2,
-                )
+                ia, oa = (prev0 + span + sa) * n2, (cur0 + span + s) * n2
+                cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, sa], q1, a_p2)
+                ib, ob = (prev0 + 2 * span + sb) * n2, (cur0 + 2 * span + s) * n2
+                cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, sb], q1, b_p2)
+            _add_paths(s_row, x, keep, line, h_out, state, (cur0 + s) * n2, span * n2, ndirs)
         if finish:
-            _select_row(s_row, select, disp[y], conf[y], right, left_k, ratio, sub)
+            _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
 
 
 @_kernel()
@@ -333,7 +345,8 @@ def _select_row(
     select: tuple[int, float, int, float, float],
     disp: np.ndarray,
     conf: np.ndarray,
-    right: np.ndarray,
+    right_cost: np.ndarray,
+    right_k: np.ndarray,
     left_k: np.ndarray,
     ratio: np.ndarray,
     sub: np.ndarray,
@@ -341,28 +354,36 @@ def _select_row(
     """Winner-take-all on one row of S for both views, uniqueness + left-right check, parabola, confidence.
 
     ``select`` is (min_d, uniqueness, disp12, conf_gain, lr_penalty); ``disp`` / ``conf`` are the
-    output row (NaN / 0 on entry), the other arrays scratch of width w. The right view's disparity
-    at xr is argmin_k S[xr + min_d + k, k]: the same aggregated row read along the diagonal, so no
-    second matching pass is needed. Costs are packed as (S << 16) | k so that one min gives value
-    and index (smallest k on ties) and both the left reduction and the right scatter-min
-    vectorise; ``right`` is stored mirrored (xr at w - 1 - xr) so the scatter runs forwards.
+    output row (``_HOLE`` / 0 on entry), the other arrays scratch of width w.
+    The right view's disparity at xr is argmin_k S[xr + min_d + k, k]: the same aggregated row
+    read along the diagonal, so no second matching pass is needed. For each x the right view's
+    best cost and disparity so far (``right_cost``, ``right_k``) are updated for every k in one
+    branch-free uint16 pass (16 lanes a 256-bit vector), which also gives the left minimum;
+    they are stored mirrored (xr at w - 1 - xr) so that pass runs forwards. Ties go to the
+    smallest disparity in both views (a strict < along increasing k).
     """
     min_d, uniqueness, disp12, conf_gain, lr_penalty = select
     w, nd = s_row.shape
-    right[:] = 0xFFFFFFFF
+    right_cost[:] = 0xFFFF
+    right_k[:] = 0xFFFF
     for x in range(w):
         left_k[x] = -1
         kmax = min(nd, x - min_d + 1)  # right column x - min_d - k must be >= 0
         if kmax <= 0:
             continue
-        mirror = w - 1 - (x - min_d)
-        packed = np.uint32(0xFFFFFFFF)
+        mirror = np.uint64(w - 1 - (x - min_d))  # unsigned: no negative-index wraparound, so LLVM vectorises
+        least = np.uint16(0xFFFF)
         for k in range(kmax):
-            v = np.uint32((np.uint32(s_row[x, k]) << np.uint32(16)) | np.uint32(k))  # cast: numba widens to 64 bits
-            packed = min(packed, v)
-            xr = np.uint64(mirror + k)  # unsigned: no negative-index wraparound, so LLVM vectorises
-            right[xr] = min(right[xr], v)
-        bk = np.int64(packed & np.uint32(0xFFFF))
+            v = s_row[x, k]
+            least = min(least, v)
+            xr = mirror + np.uint64(k)
+            better = v < right_cost[xr]
+            right_k[xr] = np.uint16(k) if better else right_k[xr]
+            right_cost[xr] = min(right_cost[xr], v)
+        first = np.uint16(0xFFFF)
+        for k in range(kmax):
+            first = min(first, np.uint16(k) if s_row[x, k] == least else np.uint16(0xFFFF))
+        bk = np.int64(first)
         if kmax < nd and bk == kmax - 1:
             continue  # best at the image edge: the true match may lie left of the right image
         best = np.float32(s_row[x, bk])
@@ -390,7 +411,7 @@ def _select_row(
         bk = left_k[x]
         if bk < 0:
             continue
-        rk = np.int64(right[w - 1 - (x - min_d - bk)] & np.uint32(0xFFFF))
+        rk = np.int64(right_k[w - 1 - (x - min_d - bk)])
         diff = abs(rk - bk)
         if disp12 >= 0 and diff > disp12:
             continue
@@ -432,7 +453,7 @@ def _aggregate_select(
     bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
     bufs[:, :, :, :, nd + 1] = 255 - p1
     mins = np.zeros((2, 2, ndirs, w + 2), np.uint8)
-    disp = np.full((h, w), np.nan, np.float32)
+    disp = np.full((h, w), _HOLE, np.float32)
     conf = np.zeros((h, w), np.float32)
     mid = h // 2
     for finish in (False, True):
@@ -446,11 +467,40 @@ def _aggregate_select(
     return disp, conf
 
 
-@_kernel(parallel=True)
-def _close_gaps(
-    disp: np.ndarray, invalid: np.float32, max_gap: int, tol: np.float32, occ_margin: int, border_margin: int
+@_kernel(fastmath=False, parallel=True)
+def _finish(
+    disp: np.ndarray, conf: np.ndarray, invalid: np.float32, gaps: tuple[int, np.float32, int, int, np.float32]
 ) -> np.ndarray:
-    """Fill the hole runs of each row whose value the bounding measurements pin down.
+    """The returned disparity: gap closing on every row, NaN where holes remain; ``conf`` follows, in place.
+
+    Holes get confidence 0, closed ones ``gaps[4]``; ``gaps`` is (max_gap, tol, occ_margin,
+    border_margin, confidence), see ``_close_gaps``.
+    """
+    h, w = disp.shape
+    out = np.empty((h, w), np.float32)
+    max_gap, tol, occ_margin, border_margin, gap_conf = gaps
+    for y in prange(h):
+        row = out[y]
+        _close_gaps(disp[y], row, invalid, max_gap, tol, occ_margin, border_margin)
+        for x in range(w):
+            if disp[y, x] == invalid:
+                conf[y, x] = np.float32(0.0) if row[x] == invalid else gap_conf
+            if row[x] == invalid:
+                row[x] = np.nan
+    return out
+
+
+@_kernel(inline=True)
+def _close_gaps(
+    disp: np.ndarray,
+    out: np.ndarray,
+    invalid: np.float32,
+    max_gap: int,
+    tol: np.float32,
+    occ_margin: int,
+    border_margin: int,
+) -> None:
+    """Copy a row to ``out``, filling the hole runs whose value the bounding measurements pin down.
 
     A run [x, e) bounded by a (left) and b (right): interpolated when short (<= ``max_gap``) and
     |a - b| <= ``tol``; given ``a`` when b - a > ``tol`` and e - x <= b - a + ``occ_margin`` (the
@@ -459,33 +509,31 @@ def _close_gaps(
     Measured on the shared GT scenes these fills are right ~75-80 % of the time, about as often
     as the measured pixels bordering holes.
     """
-    h, w = disp.shape
-    out = disp.copy()
-    for y in prange(h):
-        x = 0
-        while x < w:
-            if disp[y, x] != invalid:
-                x += 1
-                continue
-            e = x
-            while e < w and disp[y, e] == invalid:
-                e += 1
-            n = e - x
-            if e < w:
-                b = disp[y, e]
-                if x > 0:
-                    a = disp[y, x - 1]
-                    if n <= max_gap and abs(a - b) <= tol:
-                        for i in range(x, e):
-                            out[y, i] = a + (b - a) * np.float32(i - x + 1) / np.float32(n + 1)
-                    elif occ_margin >= 0 and b - a > tol and n <= b - a + occ_margin:
-                        for i in range(x, e):
-                            out[y, i] = a
-                elif border_margin >= 0 and e <= b + border_margin:
+    w = disp.shape[0]
+    out[:] = disp
+    x = 0
+    while x < w:
+        if disp[x] != invalid:
+            x += 1
+            continue
+        e = x
+        while e < w and disp[e] == invalid:
+            e += 1
+        n = e - x
+        if e < w:
+            b = disp[e]
+            if x > 0:
+                a = disp[x - 1]
+                if n <= max_gap and abs(a - b) <= tol:
                     for i in range(x, e):
-                        out[y, i] = b
-            x = e
-    return out
+                        out[i] = a + (b - a) * np.float32(i - x + 1) / np.float32(n + 1)
+                elif occ_margin >= 0 and b - a > tol and n <= b - a + occ_margin:
+                    for i in range(x, e):
+                        out[i] = a
+            elif border_margin >= 0 and e <= b + border_margin:
+                for i in range(x, e):
+                    out[i] = b
+        x = e
 
 
 @_kernel(parallel=True)
@@ -592,19 +640,11 @@ def census_sgm(
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
     disp, conf = _aggregate_select(vol, census, shift, left, acc, p1, p2, float(p2_gamma), paths, select)
     if median:
-        disp = _median3(np.where(np.isnan(disp), _HOLE, disp), _HOLE)
-        disp[disp == _HOLE] = np.nan
+        disp = _median3(disp, _HOLE)
     if speckle_size > 0:
-        disp = _remove_speckles(disp, speckle_size, speckle_range)
-    conf[np.isnan(disp)] = 0.0
-    if gap_max > 0 or occlusion_margin >= 0 or border_margin >= 0:
-        holes = np.isnan(disp)
-        coded = np.where(holes, _HOLE, disp).astype(np.float32)
-        closed = _close_gaps(coded, _HOLE, int(gap_max), np.float32(gap_tol), int(occlusion_margin), int(border_margin))
-        filled = holes & (closed != _HOLE)
-        disp = np.where(closed == _HOLE, np.float32(np.nan), closed).astype(np.float32)
-        conf[filled] = np.float32(gap_confidence)
-    return disp, conf
+        _remove_speckles(disp, speckle_size, speckle_range)
+    gaps = (int(gap_max), np.float32(gap_tol), int(occlusion_margin), int(border_margin), np.float32(gap_confidence))
+    return _finish(disp, conf, _HOLE, gaps), conf
 
 
 def compile_kernels() -> str:
@@ -719,19 +759,37 @@ def _box_sum(vol: np.ndarray, window: int, shift: int) -> np.ndarray:
     return (sums >> np.uint32(shift)).astype(np.uint8)
 
 
-def _remove_speckles(disp: np.ndarray, size: int, max_diff: float) -> np.ndarray:
-    """Drop small connected blobs that differ from their surroundings (OpenCV's speckle filter).
+def _remove_speckles(disp: np.ndarray, size: int, max_diff: float) -> None:
+    """Turn small connected blobs that differ from their surroundings into holes (OpenCV's speckle filter), in place.
 
-    Works on 1/16 px fixed point so neighbouring sub-pixel values stay connected.
+    ``disp`` holds ``_HOLE`` where invalid. The filter works on 1/16 px fixed point so neighbouring
+    sub-pixel values stay connected.
     """
-    invalid = np.int16(-32768)
-    holes = np.isnan(disp)
-    fixed = np.round(np.nan_to_num(disp, nan=0.0) * 16.0).astype(np.int16)
-    fixed[holes] = invalid
-    cv2.filterSpeckles(fixed, int(invalid), int(size), round(max_diff * 16))
-    out = disp.copy()
-    out[fixed == invalid] = np.nan
+    fixed = _to_fixed(disp, _HOLE, _FIXED_HOLE)
+    cv2.filterSpeckles(fixed, int(_FIXED_HOLE), int(size), round(max_diff * 16))
+    _drop_speckles(disp, fixed, _HOLE, _FIXED_HOLE)
+
+
+@_kernel(parallel=True)
+def _to_fixed(disp: np.ndarray, invalid: np.float32, fixed_invalid: np.int16) -> np.ndarray:
+    """Disparity in 1/16 px as int16 (OpenCV's disparity format), ``fixed_invalid`` at holes."""
+    h, w = disp.shape
+    out = np.empty((h, w), np.int16)
+    for y in prange(h):
+        for x in range(w):
+            d = disp[y, x]
+            out[y, x] = fixed_invalid if d == invalid else np.int16(np.rint(d * np.float32(16.0)))
     return out
+
+
+@_kernel(parallel=True)
+def _drop_speckles(disp: np.ndarray, fixed: np.ndarray, invalid: np.float32, fixed_invalid: np.int16) -> None:
+    """Mark as holes the pixels the speckle filter invalidated."""
+    h, w = disp.shape
+    for y in prange(h):
+        for x in range(w):
+            if fixed[y, x] == fixed_invalid:
+                disp[y, x] = invalid
 
 
 def fill_holes(
