@@ -145,12 +145,13 @@ def _popcount(v: np.uint64) -> np.uint64:
 
 
 @_kernel(inline=True)
-def _hamming_row(cl: np.ndarray, cr: np.ndarray, min_d: int, shift: int, vol: np.ndarray) -> None:
+def _hamming_row(cl: np.ndarray, cr_rev: np.ndarray, min_d: int, shift: int, vol: np.ndarray) -> None:
     """vol[x, k] = Hamming(census_left(x), census_right(x - min_d - k)) >> shift for one row, in uint8.
 
-    Right columns left of the image are clamped to column 0: the cost stays finite (it only feeds
-    the aggregation) and the winner search later ignores those disparities. The unclamped part is
-    a plain reversed run over the row, which LLVM vectorises.
+    ``cr_rev`` is the right census row reversed (column w - 1 - xr), so that each pixel's run
+    over k reads forwards: a plain loop LLVM vectorises without shuffles. Right columns left of
+    the image are clamped to column 0: the cost stays finite (it only feeds the aggregation) and
+    the winner search later ignores those disparities.
     """
     w = cl.shape[0]
     nd = vol.shape[1]
@@ -158,18 +159,19 @@ def _hamming_row(cl: np.ndarray, cr: np.ndarray, min_d: int, shift: int, vol: np
     for x in range(w):
         a = cl[x]
         kv = max(0, min(nd, x - min_d + 1))
+        first = np.uint64(w - 1 - x + min_d)  # cr_rev index of disparity min_d
         for k in range(kv):
-            vol[x, k] = np.uint8(_popcount(a ^ cr[np.uint64(x - min_d - k)]) >> bits)
-        edge = np.uint8(_popcount(a ^ cr[0]) >> bits)
+            vol[x, k] = np.uint8(_popcount(a ^ cr_rev[first + np.uint64(k)]) >> bits)
+        edge = np.uint8(_popcount(a ^ cr_rev[w - 1]) >> bits)
         for k in range(kv, nd):
             vol[x, k] = edge
 
 
 @_kernel(parallel=True)
-def _hamming_volume(cl: np.ndarray, cr: np.ndarray, min_d: int, vol: np.ndarray) -> None:
+def _hamming_volume(cl: np.ndarray, cr_rev: np.ndarray, min_d: int, vol: np.ndarray) -> None:
     """The whole cost volume (``_hamming_row`` per row, unshifted), for when it is box-summed before the sweeps."""
     for y in prange(cl.shape[0]):
-        _hamming_row(cl[y], cr[y], min_d, 0, vol[y])
+        _hamming_row(cl[y], cr_rev[y], min_d, 0, vol[y])
 
 
 @_kernel(inline=True)
@@ -629,7 +631,7 @@ def census_sgm(
     _kernels()
     ch, cw = census_size
     cl = _census(_pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
-    cr = _census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)
+    cr = np.ascontiguousarray(_census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1])  # see _hamming_row
     vol, acc = _workspace(left.shape, int(num_disparities))
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol row by row
     shift, p1, p2 = cost_shift(ch * cw - 1, window_size, P1, P2)
