@@ -153,18 +153,24 @@ def _hamming_row(cl: np.ndarray, cr_rev: np.ndarray, min_d: int, shift: int, vol
     the image are clamped to column 0: the cost stays finite (it only feeds the aggregation) and
     the winner search later ignores those disparities.
     """
+    for x in range(cl.shape[0]):
+        _hamming_pixel(cl, cr_rev, x, min_d, shift, vol)
+
+
+@_kernel(inline=True)
+def _hamming_pixel(cl: np.ndarray, cr_rev: np.ndarray, x: int, min_d: int, shift: int, vol: np.ndarray) -> None:
+    """``_hamming_row`` for column x alone."""
     w = cl.shape[0]
     nd = vol.shape[1]
     bits = np.uint64(shift)
-    for x in range(w):
-        a = cl[x]
-        kv = max(0, min(nd, x - min_d + 1))
-        first = np.uint64(w - 1 - x + min_d)  # cr_rev index of disparity min_d
-        for k in range(kv):
-            vol[x, k] = np.uint8(_popcount(a ^ cr_rev[first + np.uint64(k)]) >> bits)
-        edge = np.uint8(_popcount(a ^ cr_rev[w - 1]) >> bits)
-        for k in range(kv, nd):
-            vol[x, k] = edge
+    a = cl[x]
+    kv = max(0, min(nd, x - min_d + 1))
+    first = np.uint64(w - 1 - x + min_d)  # cr_rev index of disparity min_d
+    for k in range(kv):
+        vol[x, k] = np.uint8(_popcount(a ^ cr_rev[first + np.uint64(k)]) >> bits)
+    edge = np.uint8(_popcount(a ^ cr_rev[w - 1]) >> bits)
+    for k in range(kv, nd):
+        vol[x, k] = edge
 
 
 @_kernel(parallel=True)
@@ -291,8 +297,8 @@ def _sweep(
     sweep can stop at the middle row and resume. With ``finish`` False the paths store S,
     otherwise they add to it: S of the row is then complete (the opposite sweep already passed
     it), and the row is matched at once while it is still in cache. With ``census`` (left, right
-    census images) the storing rows first fill their row of ``vol``, which is then still in cache
-    for the paths here and read back by the other sweep; every row is stored exactly once.
+    census images) the storing rows fill ``vol[y, x]`` just before the paths of pixel x read it
+    (still in L1), and the other sweep reads it back; every cost is stored exactly once.
     """
     h, w, nd = vol.shape
     ndirs = bufs.shape[1]
@@ -307,12 +313,13 @@ def _sweep(
     ratio = np.empty(w, np.float32)
     sub = np.empty(w, np.float32)
     q1 = np.uint8(p1)
+    no_census = np.empty(0, np.uint64)
     keep = np.uint16(0xFFFF) if finish else np.uint16(0)
     x0 = 0 if sy == 1 else w - 1
     for y in range(y0, y1, sy):
         cost, s_row = vol[y], acc[y]
-        if census is not None and not finish:
-            _hamming_row(census[0][y], census[1][y], select[0], shift, cost)
+        fill = census is not None and not finish
+        cl_row, cr_row = (census[0][y], census[1][y]) if census is not None else (no_census, no_census)
         cur_min, prev_min = mins[y & 1], mins[(y & 1) ^ 1]
         cur0 = (y & 1) * ndirs * span  # index of row y's first buffer; row y - sy's is prev0
         prev0 = ((y & 1) ^ 1) * ndirs * span
@@ -321,6 +328,8 @@ def _sweep(
         for i in range(w):
             x = x0 + i * sy
             s = i + 1
+            if fill:
+                _hamming_pixel(cl_row, cr_row, x, select[0], shift, cost)
             c = np.int64(img[y, x])
             h_p2 = p2_of[abs(c - np.int64(img[y, min(max(x - sy, 0), w - 1)]))]
             h_in = 0 if i == 0 else 2 - (i & 1)
@@ -443,7 +452,7 @@ def _aggregate_select(
     (``_sweep``). Until they meet in the middle row each stores S on its own half of the image;
     after that each adds its paths to the half the other one stored, which completes S row by
     row, and matches the row at once. With ``census`` given, the storing sweeps also compute the
-    cost rows (``_hamming_row``) just before using them. So the cost volume is written once and
+    costs (``_hamming_pixel``) just before using them. So the cost volume is written once and
     read back once, S written and read once, with no second volume, no zeroing, and two parallel
     launches per frame (a parallel launch per row, parallel over columns, cost ~5x more at
     640x480). The price: this stage uses two cores at most.
