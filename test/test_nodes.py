@@ -216,7 +216,9 @@ def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: 
     for collector in (split_disparity, split_points):
         wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "split outputs matched")
     split_inputs = StereoInput(ros, "/split")
-    split_inputs.wait_matched(infos=2)  # camera_info goes to rectify_node and disparity_node
+    split_inputs.wait_matched(infos=3)  # camera_info goes to rectify_node, disparity_node and point_cloud_node
+    inner = {"/split/left/image_rect": 2, "/split/right/image_rect": 1, "/split/disparity": 2}  # chain edges
+    wait_until(lambda: all(ros.node.count_subscribers(t) >= n for t, n in inner.items()), "split chain discovered")
 
     stamp = next(_stamps)
     split_inputs.publish(euroc, stamp)
