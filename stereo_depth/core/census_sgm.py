@@ -9,7 +9,7 @@ The recipe is the standard CPU one (Zabih & Woodfill census, Hirschmueller SGM):
          (a top-down and a bottom-up sweep side by side, see ``_aggregate_select``)
       -> winner-take-all + uniqueness on S, row by row as soon as S of the row is complete
       -> right disparity from the same S (argmin along the diagonal), left-right check
-      -> parabola sub-pixel fit -> NaN-aware 3x3 median -> speckle removal
+      -> parabola sub-pixel fit -> hole-aware 3x3 median -> speckle removal
       -> gap closing: short consistent row gaps interpolated, occlusion-shaped gaps and the
          left-border strip given the background value beside them.
 
@@ -679,7 +679,7 @@ def census_sgm(
     cl = _census(_pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
     cr = np.ascontiguousarray(_census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1])  # see _hamming_row
     vol, acc = _workspace(left.shape, int(num_disparities))
-    census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol row by row
+    census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol pixel by pixel
     shift, p1, p2 = cost_shift(ch * cw - 1, window_size, P1, P2)
     if window_size > 1:
         _hamming_volume(cl, cr, int(min_disparity), vol)
