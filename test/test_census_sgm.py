@@ -36,7 +36,13 @@ QUALITY: dict[str, Any] = {  # the quality profile, as census_sgm keywords
     "speckle_range": PROFILE.speckle_range,
 }
 # census_sgm's defaults
-GAPS: dict[str, Any] = {"gap_max": 20, "gap_tol": 2.0, "occlusion_margin": 2, "border_margin": 1}
+GAPS: dict[str, Any] = {
+    "gap_max": 20,
+    "gap_tol": 2.0,
+    "occlusion_margin": 2,
+    "border_margin": 1,
+    "gap_confidence": 0.2,
+}
 
 
 @cache
@@ -149,7 +155,7 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
         np.float32(GAPS["gap_tol"]),
         GAPS["occlusion_margin"],
         GAPS["border_margin"],
-        np.float32(0.2),
+        np.float32(GAPS["gap_confidence"]),
     )
     return module._finish(coded, np.zeros_like(coded), module._HOLE, gaps)
 

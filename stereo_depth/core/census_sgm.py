@@ -145,21 +145,14 @@ def _popcount(v: np.uint64) -> np.uint64:
 
 
 @_kernel(inline=True)
-def _hamming_row(cl: np.ndarray, cr_rev: np.ndarray, min_d: int, shift: int, vol: np.ndarray) -> None:
-    """vol[x, k] = Hamming(census_left(x), census_right(x - min_d - k)) >> shift for one row, in uint8.
-
-    ``cr_rev`` is the right census row reversed (column w - 1 - xr), so that each pixel's run
-    over k reads forwards: a plain loop LLVM vectorises without shuffles. Right columns left of
-    the image are clamped to column 0: the cost stays finite (it only feeds the aggregation) and
-    the winner search later ignores those disparities.
-    """
-    for x in range(cl.shape[0]):
-        _hamming_pixel(cl, cr_rev, x, min_d, shift, vol)
-
-
-@_kernel(inline=True)
 def _hamming_pixel(cl: np.ndarray, cr_rev: np.ndarray, x: int, min_d: int, shift: int, vol: np.ndarray) -> None:
-    """``_hamming_row`` for column x alone."""
+    """vol[x, k] = Hamming(census_left(x), census_right(x - min_d - k)) >> shift for one pixel of a row, in uint8.
+
+    ``cr_rev`` is the right census row reversed (column w - 1 - xr), so that the run over k reads
+    forwards: a plain loop LLVM vectorises without shuffles. Right columns left of the image are
+    clamped to column 0: the cost stays finite (it only feeds the aggregation) and the winner
+    search later ignores those disparities.
+    """
     w = cl.shape[0]
     nd = vol.shape[1]
     bits = np.uint64(shift)
@@ -175,9 +168,11 @@ def _hamming_pixel(cl: np.ndarray, cr_rev: np.ndarray, x: int, min_d: int, shift
 
 @_kernel(parallel=True)
 def _hamming_volume(cl: np.ndarray, cr_rev: np.ndarray, min_d: int, vol: np.ndarray) -> None:
-    """The whole cost volume (``_hamming_row`` per row, unshifted), for when it is box-summed before the sweeps."""
+    """The whole cost volume (``_hamming_pixel``, unshifted), for when it is box-summed before the sweeps."""
     for y in prange(cl.shape[0]):
-        _hamming_row(cl[y], cr_rev[y], min_d, 0, vol[y])
+        cl_row, cr_row, vol_row = cl[y], cr_rev[y], vol[y]
+        for x in range(cl.shape[1]):
+            _hamming_pixel(cl_row, cr_row, x, min_d, 0, vol_row)
 
 
 @_kernel(inline=True)
@@ -677,7 +672,7 @@ def census_sgm(
     _kernels()
     ch, cw = census_size
     cl = _census(_pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
-    cr = np.ascontiguousarray(_census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1])  # see _hamming_row
+    cr = np.ascontiguousarray(_census(_pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1])  # see _hamming_pixel
     vol, acc = _workspace(left.shape, int(num_disparities))
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: the sweeps fill vol pixel by pixel
     shift, p1, p2 = cost_shift(ch * cw - 1, window_size, P1, P2)
