@@ -3,40 +3,72 @@
 SHELL := /bin/bash
 VENV := .venv
 STAMP := $(VENV)/.installed
+MIN_VENV := .venv-min
 PYTHON312 := $(shell for c in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python3.12 /usr/bin/python3.12 /usr/local/bin/python3.12; do \
 	$$c -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && { echo $$c; break; }; done)
 # Keep DDS on this machine and away from other runs.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 
-.PHONY: venv test demo lint clean
+.PHONY: venv test test-min demo lint lock bench-readme clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt setup.py setup.cfg
+# A venv holds exactly one lock file's versions (every package pinned, nothing resolved on the way), so a
+# fresh machine runs what CI ran; tools/check_lock.py fails the install if the venv disagrees with it.
+define install_locked
 	@test -n "$(PYTHON312)" || { echo "ERROR: Python 3.12 not found (ROS 2 Jazzy wheels need it): install it, e.g. 'pyenv install 3.12'" >&2; exit 1; }
+	@test -x $(1)/bin/python || $(PYTHON312) -m venv $(1)
+	$(1)/bin/python -m pip install --quiet --no-deps -r $(2)
+	$(1)/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(1)/bin/python tools/check_lock.py $(2)
+	@touch $(1)/.installed
+endef
+
+$(STAMP): requirements.lock setup.py setup.cfg tools/check_lock.py
+	$(call install_locked,$(VENV),requirements.lock)
+
+$(MIN_VENV)/.installed: requirements-min.lock setup.py setup.cfg tools/check_lock.py
+	$(call install_locked,$(MIN_VENV),requirements-min.lock)
+
+# Re-resolve both locks from the ranges (requirements*.txt), for CPython 3.12 on Linux x86_64: the newest
+# versions for requirements.lock; the oldest that requirements.txt allows for requirements-min.lock (test
+# tools as in requirements.lock). Run `make test` and `make test-min` before committing new locks.
+UV_COMPILE := $(VENV)/bin/uv pip compile --quiet --upgrade --python-version 3.12 \
+	--python-platform x86_64-manylinux_2_28 --custom-compile-command "make lock"
+$(VENV)/bin/uv:  # only when there is no venv yet (the lock's own venv has uv)
 	@test -x $(VENV)/bin/python || $(PYTHON312) -m venv $(VENV)
-	$(VENV)/bin/python -m pip install --quiet --upgrade pip
-	$(VENV)/bin/python -m pip install --quiet -r requirements.txt
-	$(VENV)/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
-	@touch $@
+	$(VENV)/bin/python -m pip install --quiet uv
+
+lock: $(VENV)/bin/uv
+	$(UV_COMPILE) requirements-dev.txt -o requirements.lock
+	grep -iE "^($$(sed -nE 's/^([A-Za-z0-9_.-]+).*/\1/p' requirements-test.txt | paste -sd'|'))==" requirements.lock \
+		> $(VENV)/test-tool-pins.txt
+	$(UV_COMPILE) --resolution lowest-direct -c $(VENV)/test-tool-pins.txt requirements.txt requirements-test.txt \
+		-o requirements-min.lock
 
 # Two workers, each test file on one of them (its module fixtures start its nodes once); each worker
 # has a ROS domain id of its own (test/conftest.py), so their DDS traffic never mixes.
 test: venv
 	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile test
 
+# The oldest versions requirements.txt claims (OpenCV 4.6, numpy 1.26, numba, rosbags, mcap at their lower
+# bounds; requirements-min.lock), on the core, bag and node tests: what an Ubuntu 24.04 / rosdep user has.
+MIN_TESTS := $(filter-out test/test_package.py test/test_fleet.py test/test_readme_claims.py,$(wildcard test/test_*.py))
+test-min: $(MIN_VENV)/.installed
+	$(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
+
 demo: venv
 	$(VENV)/bin/stereo-depth demo
 
 # Style and types, as CI checks them: any finding fails. Tests and bench call into rclpy's partly
 # unannotated API, so there (and only there) untyped calls are allowed.
-LINTED := stereo_depth test bench launch
+LINTED := stereo_depth test bench launch tools
 lint: venv
 	$(VENV)/bin/ruff check $(LINTED)
 	$(VENV)/bin/ruff format --check $(LINTED)
 	$(VENV)/bin/mypy stereo_depth
-	$(VENV)/bin/mypy --allow-untyped-calls test bench
+	$(VENV)/bin/mypy --allow-untyped-calls test bench tools
 
 clean:
-	rm -rf $(VENV) build install log out
+	rm -rf $(VENV) $(MIN_VENV) build install log out
