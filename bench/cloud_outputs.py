@@ -25,6 +25,7 @@ from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import OutputOptions, OutputState, StereoFrame, geometry_outputs, result_geometry
+from stereo_depth.machine import print_machine
 from stereo_depth.messages import make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -41,6 +42,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
     args = parser.parse_args()
+    print_machine()
     name = sorted((EUROC / "left").glob("*.png"))[0].name
     left, right = (cv2.imread(str(EUROC / side / name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right"))
     assert left is not None and right is not None, f"cannot read the EuRoC pair {name}"

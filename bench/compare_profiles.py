@@ -16,6 +16,7 @@ from stereo_depth.core.metrics import accuracy, colorize_disparity, label
 from stereo_depth.core.params import PROFILES, make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.scenes import load_scene
+from stereo_depth.machine import print_machine
 
 
 def main() -> None:
@@ -25,6 +26,7 @@ def main() -> None:
     parser.add_argument("--profiles", nargs="+", default=["stereo_image_proc", "fast", "default", "quality"])
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
+    print_machine()
     scene = load_scene(args.scene)
     assert scene.gt is not None, "the scene needs ground truth"
     top = float(np.nanmax(scene.gt))

@@ -30,6 +30,7 @@ from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
 from stereo_depth.frames import decode_image
+from stereo_depth.machine import print_machine
 from stereo_depth.messages import array_to_compressed, array_to_image, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -107,6 +108,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
     args = parser.parse_args()
+    print_machine()
     print(f"VGA {VGA[0]}x{VGA[1]}, default profile, medians of {args.repeat} interleaved runs")
     columns = ("KiB/img", "decode ms", "vs raw", "frame ms", "vs raw")
     print(f"{'frames':14s} {'input':5s} " + " ".join(f"{c:>10s}" for c in columns))

@@ -14,6 +14,7 @@ from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.scenes import load_scene
+from stereo_depth.machine import print_machine
 
 
 def main() -> None:
@@ -22,6 +23,7 @@ def main() -> None:
     parser.add_argument("--profile", default="quality")
     parser.add_argument("--threshold", type=float, default=0.5)
     args = parser.parse_args()
+    print_machine()
     print(f"{'scene':36s}{'bad2_est':>10s}{'confident':>11s}{'share':>8s}")
     overall, confident, shares = [], [], []
     for folder in args.scenes:

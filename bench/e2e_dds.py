@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from stereo_depth.machine import print_machine
 from stereo_depth.ros.transport import PROFILE_VARIABLES
 
 REPO = Path(__file__).resolve().parents[1]
@@ -540,6 +541,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write every run's figures here")
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
     args = parser.parse_args()
+    print_machine()
     if args.role == "publish":
         run_publisher(args)
         return

@@ -28,6 +28,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from offline_process import write_bag
 
+from stereo_depth.machine import print_machine
+
 BAGS = 4
 # A local instance on loopback: no usage statistics, and no token written to ~/.ray (Ray 2.60 creates
 # one for a new local instance, which later `ray start` heads on this machine would then demand).
@@ -84,6 +86,7 @@ def main() -> None:
     parser.add_argument("--profile", default="default")
     parser.add_argument("--size", default="640x480")
     args = parser.parse_args()
+    print_machine()
     width, height = map(int, args.size.split("x"))
     print(f"{BAGS} bags x {args.frames} frames {args.size}, profile {args.profile}, {os.cpu_count()} cores")
     print(f"{'mode':14s}{'wall s':>8s}{'frames/s':>10s}{'vs jobs 1':>11s}{'in tasks f/s/core':>19s}")

@@ -40,6 +40,7 @@ from stereo_depth.core.matching import OpenCVMatcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.frames import OutputState
+from stereo_depth.machine import print_machine
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -148,6 +149,7 @@ def main() -> None:
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x720"])
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), metavar="V")
     args = parser.parse_args()
+    print_machine()
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {args.frames} frames, load {' '.join(load)}")
     print(f"{'profile':18s}{'size':>10s}{'output':>30s}{'ours f/s':>10s}{'bare f/s':>10s}{'ratio':>7s}")

@@ -24,6 +24,7 @@ import numpy as np
 
 from stereo_depth.core.matching import Matcher, OpenCVMatcher, create_matcher, opencv_sgbm
 from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.machine import print_machine
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import frames
@@ -67,6 +68,7 @@ def main() -> None:
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--frames", type=int, default=10)
     args = parser.parse_args()
+    print_machine()
     width, height = (int(v) for v in args.size.split("x"))
     ((left, right),) = list(frames(width, height, 1))
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {width}x{height}, anchor frames")

@@ -30,6 +30,7 @@ from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import disparity_message
+from stereo_depth.machine import print_machine
 from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -101,6 +102,7 @@ def main() -> None:
     parser.add_argument("--profiles", nargs="+", default=["default", "fast", "stereo_image_proc"])
     parser.add_argument("--disparity-range", type=int, default=64)
     args = parser.parse_args()
+    print_machine()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
     header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>8s}" for s in COLUMNS)
     print(

@@ -33,6 +33,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from stereo_depth.machine import print_machine
+
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "test" / "data" / "scenes" / "artl"
 FRAME_ID = "soak_left_optical_frame"
@@ -199,6 +201,7 @@ def main() -> int:
     parser.add_argument("--report", type=float, default=10.0, help="seconds between report lines")
     parser.add_argument("-p", dest="params", action="append", default=[], help="stereo_node name:=value")
     args = parser.parse_args()
+    print_machine()
     width, height = (int(v) for v in args.size.lower().split("x"))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", "15")
