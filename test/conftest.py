@@ -25,6 +25,19 @@ def read_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     return image
 
 
+CALIBRATION_RTOL = 1e-9  # two computations of one calibration (file formats, code paths): not bit for bit
+
+
+def assert_same_calibration(got: Any, expected: Any, what: object = "") -> None:
+    """The same camera within CALIBRATION_RTOL of the largest entry of each matrix: a calibration read two
+    ways goes through different float operations, and numpy / OpenCV versions round them differently."""
+    assert (got.width, got.height, got.distortion_model) == (expected.width, expected.height, expected.distortion_model)
+    for name in ("k", "d", "r", "p"):
+        a, b = np.asarray(getattr(got, name)), np.asarray(getattr(expected, name))
+        scale = max(1.0, float(np.abs(b).max(initial=0.0)))
+        np.testing.assert_allclose(a, b, rtol=0, atol=CALIBRATION_RTOL * scale, err_msg=f"{what} {name}")
+
+
 def _claim_domain_id() -> int:
     """A ROS_DOMAIN_ID no other test run on this host holds: each run locks one for its lifetime, so two
     runs at once (two checkouts, CI beside a developer) never see each other's nodes and topics."""

@@ -32,7 +32,7 @@ from stereo_depth.messages import (
     stamp_to_ns,
 )
 
-from conftest import EUROC
+from conftest import EUROC, assert_same_calibration
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 EUROC_BAG = BAGS / "euroc_raw"
@@ -130,7 +130,8 @@ def test_every_calibration_file_layout_gives_the_same_rectification(tmp_path: Pa
         (euroc_folder / cam / "sensor.yaml").write_bytes((EUROC / f"{cam}_sensor.yaml").read_bytes())
     for source in (CAMCHAIN, EUROC, tmp_path):
         left, right = read_stereo_calibration(source)
-        assert (left.key(), right.key()) == (sensor[0].key(), sensor[1].key()), source
+        assert_same_calibration(left, sensor[0], source)
+        assert_same_calibration(right, sensor[1], source)
     with pytest.raises(CalibrationError, match=r"no calibration found.*camchain"):
         read_stereo_calibration(EUROC / "left")
     with pytest.raises(CalibrationError, match="not a Kalibr camchain"):
