@@ -93,12 +93,13 @@ class Collector:
         with self._lock:
             return [stamp_to_ns(m.header.stamp) for m in self.messages]
 
-    def wait_stamp(self, stamp_ns: int, timeout: float = TIMEOUT_S) -> Any:
-        def find() -> Any:
-            with self._lock:
-                return next((m for m in self.messages if stamp_to_ns(m.header.stamp) == stamp_ns), None)
+    def find(self, stamp_ns: int) -> Any:
+        """The message received with this stamp, or None."""
+        with self._lock:
+            return next((m for m in self.messages if stamp_to_ns(m.header.stamp) == stamp_ns), None)
 
-        return wait_until(find, f"{self.subscription.topic_name} with stamp {stamp_ns}", timeout)
+    def wait_stamp(self, stamp_ns: int, timeout: float = TIMEOUT_S) -> Any:
+        return wait_until(lambda: self.find(stamp_ns), f"{self.subscription.topic_name} with stamp {stamp_ns}", timeout)
 
     def wait_any(self, timeout: float = TIMEOUT_S) -> Any:
         start = len(self.messages)
