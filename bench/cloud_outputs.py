@@ -24,8 +24,9 @@ from sensor_msgs.msg import PointCloud2
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
-from stereo_depth.frames import OutputOptions, OutputState, StereoFrame, geometry_outputs, result_geometry
+from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, result_geometry
 from stereo_depth.messages import make_header
+from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"

@@ -15,11 +15,9 @@ come out (see messages.py).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import threading
-from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass
 from typing import Any, NamedTuple, TypeVar
 
 import cv2
@@ -27,9 +25,10 @@ import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays
-from stereo_depth.core.params import StereoParams, _spec, coerce
+from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
-from stereo_depth.errors import CalibrationError, ImageError, ParameterError, StereoDepthError
+from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
+from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
     DEFAULT_MAX_PIXELS,
     CloudBuffer,
@@ -43,6 +42,7 @@ from stereo_depth.messages import (
     image_to_pipeline,
     stamp_to_ns,
 )
+from stereo_depth.options import OutputOptions
 
 T = TypeVar("T")
 
@@ -51,99 +51,11 @@ IMAGE_OUTPUTS = ("left/image_rect", "left/image_rect_color", "disparity", "confi
 GEOMETRY_OUTPUTS = ("depth", "depth/camera_info", "points2")
 OUTPUTS = (*IMAGE_OUTPUTS, *GEOMETRY_OUTPUTS)
 
-DEPTH_ENCODINGS = ("32FC1", "16UC1")
 MM_PER_M = 1000.0
 UINT16_MAX = 65535
 
 # How an input is named in errors when the caller has no topic names.
 INPUT_NAMES = ("left image", "left camera_info", "right image", "right camera_info")
-
-
-@dataclass(frozen=True)
-class OutputOptions:
-    """How outputs are built, live and offline alike (ROS parameters of the nodes, `process --set`)."""
-
-    use_color: bool = field(default=True, metadata=_spec("Add PCL-style packed rgb to points2"))
-    avoid_point_cloud_padding: bool = field(
-        default=False, metadata=_spec("Pack points2 tightly (16-byte points) instead of stereo_image_proc's 32")
-    )
-    max_image_pixels: int = field(
-        default=DEFAULT_MAX_PIXELS,
-        metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
-    )
-    depth_encoding: str = field(
-        default="32FC1",
-        metadata=_spec(
-            "depth image encoding: 32FC1 (metres, NaN invalid) or 16UC1 (millimetres, 0 invalid, REP 118; "
-            "beyond 65.535 m invalid)"
-        ),
-    )
-    min_depth: float = field(
-        default=0.0, metadata=_spec("Nearer points are invalid in depth and points2, metres (0 = no limit)", 0.0, 1e4)
-    )
-    max_depth: float = field(
-        default=0.0,
-        metadata=_spec("Farther points are invalid in depth and points2, metres (0 = no limit)", 0.0, 1e4),
-    )
-    mask_image: str = field(
-        default="",
-        metadata=_spec(
-            "Path of an image the size of the raw left image: where it is zero (robot body, bumper, lens "
-            "hood) nothing is output in depth or points2. Empty: no mask"
-        ),
-    )
-    organized_cloud: bool = field(
-        default=True,
-        metadata=_spec(
-            "points2 organized like the image (stereo_image_proc's layout, NaN invalid), or false: the valid "
-            "points only (height 1, is_dense, no NaN)"
-        ),
-    )
-    cloud_voxel_size: float = field(
-        default=0.0,
-        metadata=_spec("With organized_cloud false: one point per voxel of this edge, metres (0 = off)", 0.0, 100.0),
-    )
-    points_max_rate: float = field(
-        default=0.0,
-        metadata=_spec("Publish points2 at most this often, Hz, judged by stamps (0 = every frame)", 0.0, 1000.0),
-    )
-
-    def validate(self) -> OutputOptions:
-        for f in dataclasses.fields(self):
-            spec, value = f.metadata, getattr(self, f.name)
-            if spec.get("min") is not None and not spec["min"] <= value <= spec["max"]:
-                msg = f"{f.name} {value} is outside [{spec['min']}, {spec['max']}]"
-                raise ParameterError(msg)
-        checks = [
-            (
-                self.depth_encoding in DEPTH_ENCODINGS,
-                f"depth_encoding '{self.depth_encoding}' must be one of {', '.join(DEPTH_ENCODINGS)}",
-            ),
-            (
-                not (self.min_depth > 0 and self.max_depth > 0) or self.max_depth > self.min_depth,
-                f"max_depth ({self.max_depth}) must be greater than min_depth ({self.min_depth})",
-            ),
-            (
-                self.cloud_voxel_size == 0 or not self.organized_cloud,
-                "cloud_voxel_size thins the unorganized cloud: set organized_cloud to false as well",
-            ),
-        ]
-        for ok, reason in checks:
-            if not ok:
-                raise ParameterError(reason)
-        if self.mask_image:
-            read_mask(self.mask_image)  # refused now, not frame after frame
-        return self
-
-
-def output_option_names() -> list[str]:
-    return [f.name for f in dataclasses.fields(OutputOptions)]
-
-
-def make_output_options(values: Mapping[str, Any]) -> OutputOptions:
-    """OutputOptions from looser values (text from the command line, YAML), validated."""
-    kinds = {f.name: f.type for f in dataclasses.fields(OutputOptions)}
-    return OutputOptions(**{name: coerce(name, value, kinds[name]) for name, value in values.items()}).validate()
 
 
 @dataclass(frozen=True)
@@ -285,28 +197,6 @@ def image_outputs(
 
 
 # ---------------------------------------------------------------- geometry outputs
-
-
-def read_mask(path: str) -> np.ndarray:
-    """The mask image as bool (True: may be output), read once per file version."""
-    try:
-        stat = Path(path).stat()
-    except OSError as exc:
-        msg = f"mask_image {path}: cannot read it ({exc.strerror})"
-        raise ParameterError(msg) from exc
-    return _read_mask(path, stat.st_mtime_ns, stat.st_size)
-
-
-@functools.lru_cache(maxsize=4)
-def _read_mask(path: str, mtime_ns: int, size: int) -> np.ndarray:
-    del mtime_ns, size  # the cache key: a changed file is read again
-    image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        msg = f"mask_image {path}: not an image OpenCV can read (use a PNG, zero where nothing is output)"
-        raise ParameterError(msg)
-    mask: np.ndarray = image > 0
-    mask.setflags(write=False)
-    return mask
 
 
 class RectifiedMasks:

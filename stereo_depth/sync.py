@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from stereo_depth.errors import ParameterError
+from stereo_depth.options import NodeOptions
 
 Stamped = tuple[int, Any]
 Choice = tuple[Stamped, bool] | None  # a camera_info and whether its stamp is the set's; None: unknown
@@ -76,7 +77,7 @@ class Synchronizer:
     def __init__(
         self,
         n_inputs: int,
-        queue_size: int = 5,
+        queue_size: int = NodeOptions().queue_size,  # its range is checked there
         approximate: bool = False,
         tolerance_ns: int = 0,
         time_jump_ns: int = 1_000_000_000,
@@ -86,9 +87,6 @@ class Synchronizer:
     ) -> None:
         if not 2 <= n_inputs <= 4:
             msg = f"a synchronizer takes 2 to 4 inputs, not {n_inputs}"
-            raise ParameterError(msg)
-        if queue_size < 1:
-            msg = f"queue_size {queue_size} must be at least 1"
             raise ParameterError(msg)
         if tolerance_ns < 0:
             msg = f"approximate sync tolerance {tolerance_ns} ns must not be negative"

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow, TopicChoice
+from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, TimeWindow, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
@@ -28,7 +28,6 @@ from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     OUTPUTS,
     Geometry,
-    OutputOptions,
     OutputState,
     StereoFrame,
     decode_frame,
@@ -38,13 +37,14 @@ from stereo_depth.frames import (
     result_geometry,
 )
 from stereo_depth.messages import MessageTypes
+from stereo_depth.options import NodeOptions, OutputOptions
 
 
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
     topics: TopicChoice | None = None  # --left/--right/--camera-info (its namespace wins over the one above)
-    sync: SyncPolicy = field(default_factory=SyncPolicy)
+    sync: NodeOptions = field(default_factory=NodeOptions)  # its sync options, as the node's
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
     outputs: tuple[str, ...] = OUTPUTS  # what stereo_node publishes by default (colour, confidence: when there)

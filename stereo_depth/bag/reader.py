@@ -23,11 +23,11 @@ from stereo_depth.bag.types import deserialize, rosbags_types
 from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import BagError
 from stereo_depth.messages import camera_info_to_msg, same_calibration, stamp_to_ns
+from stereo_depth.options import NodeOptions
 from stereo_depth.sync import SyncCounters, Synchronizer
 
 ROLES = ("left_image", "left_info", "right_image", "right_info")
 CALIBRATION_OF_IMAGE = {1: 0, 3: 2}  # camera_info role -> image role (see sync.Synchronizer)
-NO_LIMIT_NS = 1 << 62
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
@@ -79,20 +79,6 @@ class TopicChoice:
     def reads_info(self) -> bool:
         """Whether the bag's camera_info topics are read (not replaced by a file, and needed at all)."""
         return self.calibration is None and self.need_info
-
-
-@dataclass(frozen=True)
-class SyncPolicy:
-    """The live node's sync parameters and defaults (queue_size, approximate_sync and its tolerance)."""
-
-    approximate: bool = False
-    queue_size: int = 5
-    tolerance_ns: int = NO_LIMIT_NS
-
-    @classmethod
-    def from_node_parameters(cls, approximate: bool, queue_size: int, tolerance_s: float) -> SyncPolicy:
-        """As the node reads approximate_sync_tolerance_seconds: 0 means no limit (stereo_image_proc)."""
-        return cls(approximate, queue_size, round(tolerance_s * 1e9) if tolerance_s > 0 else NO_LIMIT_NS)
 
 
 @dataclass(frozen=True)
@@ -293,12 +279,12 @@ class StereoBagReader:
         path: Path | str,
         *,
         namespace: str | None = None,
-        sync: SyncPolicy | None = None,
+        sync: NodeOptions | None = None,
         choice: TopicChoice | None = None,
         window: TimeWindow | None = None,
     ) -> None:
         self.path = Path(path)
-        self.policy = sync or SyncPolicy()
+        self.policy = sync or NodeOptions()  # the live node's sync options and defaults
         self.choice = choice or TopicChoice(namespace=namespace)
         self.window = window or TimeWindow()
         self._reader = open_reader(self.path)
@@ -333,7 +319,7 @@ class StereoBagReader:
         sync = Synchronizer(
             len(inputs),
             self.policy.queue_size,
-            self.policy.approximate,
+            self.policy.approximate_sync,
             self.policy.tolerance_ns,
             calibrations=CALIBRATION_OF_IMAGE if self.choice.reads_info else None,
             same_calibration=same_calibration,

@@ -9,7 +9,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.frames import image_outputs
-from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
+from stereo_depth.options import INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 

@@ -18,7 +18,7 @@ from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
 from stereo_depth.frames import Geometry, OutputState, geometry_outputs
 from stereo_depth.messages import disparity_from_msg, stamp_to_ns
-from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
+from stereo_depth.options import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 

@@ -29,17 +29,15 @@ from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     IMAGE_OUTPUTS,
-    OutputOptions,
     OutputState,
     StereoFrame,
     geometry_outputs,
     image_outputs,
     result_geometry,
 )
-from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
+from stereo_depth.options import CAMERA_OPTIONS, CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, OutputOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.settings import CAMERA_OPTIONS
 
 OUTPUT_TYPES = {
     "left/image_rect": Image,

@@ -37,8 +37,9 @@ from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
 from stereo_depth.frames import StereoFrame, decode_frame, decode_image, frame_camera, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
+from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
-from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
+from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos
 from stereo_depth.ros.transport import use_large_message_profile
