@@ -1,10 +1,12 @@
 """One frame from four input messages to output messages: the one path of the live nodes and `process`.
 
-stereo_node's two worker stages, disparity_node, point_cloud_node and `stereo-depth process` all call
-these functions, so live and offline outputs agree by construction, option for option:
+stereo_node's two worker stages, disparity_node, point_cloud_node, `stereo-depth process` and
+`check-calibration` all call these functions, so live and offline outputs agree by construction,
+option for option:
 
-- `decode_frame`: (left image, left info, right image, right info) -> `StereoFrame`, sizes checked and
-  every error naming the input it is about;
+- `decode_frame`: a `StereoSet` (the synchronizer's four inputs, by name) -> `StereoFrame`, sizes
+  checked and every error naming the input it is about;
+- `match_frame`, then `frame_outputs`: the two stages in order, the node's and `process`'s:
 - `image_outputs`: what matching gives (left/image_rect(_color), disparity, confidence);
 - `geometry_outputs`: what depth gives (depth, points2), one cloud builder for all.
 
@@ -16,7 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import threading
-from collections.abc import Callable, Collection, Sequence
+import time
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any, NamedTuple, TypeVar
 
@@ -43,6 +46,7 @@ from stereo_depth.messages import (
     stamp_to_ns,
 )
 from stereo_depth.options import OutputOptions
+from stereo_depth.sync import StereoSet
 
 T = TypeVar("T")
 
@@ -54,18 +58,27 @@ OUTPUTS = (*IMAGE_OUTPUTS, *GEOMETRY_OUTPUTS)
 MM_PER_M = 1000.0
 UINT16_MAX = 65535
 
-# How an input is named in errors when the caller has no topic names.
-INPUT_NAMES = ("left image", "left camera_info", "right image", "right camera_info")
+
+class InputNames(NamedTuple):
+    """What errors call each input of a StereoSet: its topic live and offline, these words otherwise."""
+
+    left_image: str = "left image"
+    left_info: str = "left camera_info"
+    right_image: str = "right image"
+    right_info: str = "right camera_info"
+
+
+INPUT_NAMES = InputNames()  # when the caller has no topic names
 
 
 @dataclass(frozen=True)
 class StereoFrame:
-    """The four inputs of one frame, decoded: what the pipeline matches and the outputs copy."""
+    """The inputs of one frame, decoded: what the pipeline matches and the outputs copy."""
 
     stamp_ns: int
     header: Any  # the left image's header, copied onto every output
     left: np.ndarray  # as the pipeline takes them: mono (8 or 16 bit) or BGR
-    right: np.ndarray
+    right: np.ndarray | None  # None: the set had no right image (point_cloud_node reads a disparity instead)
     camera: StereoCamera  # the pipeline's cached camera for this calibration
     rectified: bool  # the images are rectified already (image_rect inputs)
 
@@ -100,42 +113,45 @@ def frame_camera(pipeline: StereoPipeline, left_info: Any, right_info: Any, name
 
 
 def decode_frame(
-    messages: Sequence[Any],
+    inputs: StereoSet,
     pipeline: StereoPipeline,
     options: OutputOptions,
     *,
     rectified: bool,
-    names: Sequence[str] = INPUT_NAMES,
+    names: InputNames = INPUT_NAMES,
 ) -> StereoFrame:
-    """(left image, left info, right image, right info) -> StereoFrame; `names` (the topics) name the
-    input each error is about, so a user knows which driver to fix."""
-    left_msg, left_info, right_msg, right_info = messages
-    left = named(names[0], decode_image, left_msg, options.max_image_pixels)
-    right = named(names[2], decode_image, right_msg, options.max_image_pixels)
-    camera = frame_camera(pipeline, left_info, right_info, (names[1], names[3]))
-    (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
-    if (lh, lw) != (rh, rw):
-        msg = (
-            f"{names[0]} is {lw}x{lh} but {names[2]} is {rw}x{rh}; both cameras must "
-            "stream one resolution (check each driver's mode, binning and ROI)"
-        )
-        raise ImageError(msg)
+    """A matched set's images and calibration, sizes checked; `names` (the topics) name the input each
+    error is about, so a user knows which driver to fix."""
+    left = named(names.left_image, decode_image, inputs.left_image, options.max_image_pixels)
+    (lh, lw), images, right = left.shape[:2], f"{names.left_image} is", None
+    if inputs.right_image is not None:
+        right = named(names.right_image, decode_image, inputs.right_image, options.max_image_pixels)
+        rh, rw = right.shape[:2]
+        if (lh, lw) != (rh, rw):
+            msg = (
+                f"{names.left_image} is {lw}x{lh} but {names.right_image} is {rw}x{rh}; both cameras must "
+                "stream one resolution (check each driver's mode, binning and ROI)"
+            )
+            raise ImageError(msg)
+        images = f"{names.left_image} and {names.right_image} are"
+    camera = frame_camera(pipeline, inputs.left_info, inputs.right_info, (names.left_info, names.right_info))
     if (lw, lh) != (camera.width, camera.height):
         msg = (
-            f"{names[0]} and {names[2]} are {lw}x{lh} but {names[1]} and {names[3]} "
+            f"{images} {lw}x{lh} but {names.left_info} and {names.right_info} "
             f"say {camera.width}x{camera.height}; publish the calibration of this camera mode"
         )
         raise CalibrationError(msg)
-    header = left_msg.header
+    header = inputs.left_image.header
     return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
 
 
-def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: Sequence[str] = INPUT_NAMES) -> StereoResult:
+def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: InputNames = INPUT_NAMES) -> StereoResult:
     """Rectify, match and filter one frame (`pipeline.match`); errors name both image inputs."""
+    assert frame.right is not None, "a frame without a right image cannot be matched"
     try:
         return pipeline.match(frame.left, frame.right, frame.camera, rectified=frame.rectified)
     except StereoDepthError as exc:
-        raise type(exc)(f"{names[0]} and {names[2]}: {exc}") from exc
+        raise type(exc)(f"{names.left_image} and {names.right_image}: {exc}") from exc
 
 
 # ---------------------------------------------------------------- match outputs
@@ -350,3 +366,48 @@ def geometry_outputs(
             voxel_size=options.cloud_voxel_size,
         )
     return messages
+
+
+# ---------------------------------------------------------------- the two stages in order
+
+
+def run_now(stage: Callable[[], None]) -> None:
+    stage()
+
+
+def frame_outputs(
+    types: MessageTypes,
+    pipeline: StereoPipeline,
+    frame: StereoFrame,
+    result: StereoResult,
+    params: StereoParams,
+    output: OutputOptions,
+    wanted: Collection[str],
+    state: OutputState,
+    send_images: Callable[[dict[str, Any]], None],
+    send_cloud: Callable[[dict[str, Any], Geometry | None], None],
+    *,
+    run_cloud_stage: Callable[[Callable[[], None]], None] = run_now,
+    with_geometry: bool = False,
+) -> None:
+    """What follows `match_frame`, in stereo_node's order, for the node and `process` alike: the image
+    outputs in `wanted` go to `send_images` at once; then the cloud stage builds those of depth,
+    depth/camera_info and points2 in `wanted` that are due (points_max_rate), with the geometry they
+    come from, for `send_cloud`, which ends the frame. `run_cloud_stage` runs that stage: at once
+    (`process`) or on the node's second thread. Nothing due (and no `with_geometry`, which a PLY
+    needs): `send_cloud({}, None)` at once.
+    """
+    send_images(image_outputs(types, frame.header, result, params, wanted))
+    due = state.cloud_rate.wanted([name for name in GEOMETRY_OUTPUTS if name in wanted], frame.stamp_ns, output)
+    if not due and not with_geometry:
+        send_cloud({}, None)
+        return
+
+    def cloud_stage() -> None:
+        geometry = result_geometry(pipeline, frame, result)  # times "depth"
+        start = time.perf_counter()
+        messages = geometry_outputs(types, frame.header, geometry, output, due, state)
+        result.timings_ms["points"] = (time.perf_counter() - start) * 1000.0
+        send_cloud(messages, geometry)
+
+    run_cloud_stage(cloud_stage)

@@ -24,7 +24,7 @@ set is emitted, everything older is dropped and counted. A stamp that goes back 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -296,3 +296,26 @@ class Synchronizer:
             return None
         self.counters.matched += 1
         return stamps[0], tuple(messages)
+
+
+# A stereo camera's synchronizer inputs, in this order; each camera_info pairs by its image's stamp.
+STEREO_INPUTS = ("left_image", "left_info", "right_image", "right_info")
+STEREO_CALIBRATIONS = {1: 0, 3: 2}
+
+
+@dataclass(frozen=True)
+class StereoSet:
+    """One matched set of a stereo camera's four inputs, by name: what the synchronizer pairs for the
+    stereo nodes and for the bag reader alike, and what frames.decode_frame reads. Messages of either
+    flavour (rclpy or rosbags); an image may be a CompressedImage; a missing input is None."""
+
+    stamp_ns: int  # the set's stamp, as the synchronizer gave it
+    left_image: Any
+    left_info: Any
+    right_image: Any
+    right_info: Any
+
+    @classmethod
+    def paired(cls, stamp_ns: int, messages: Sequence[Any]) -> StereoSet:
+        """A set of a synchronizer whose inputs are STEREO_INPUTS."""
+        return cls(stamp_ns, **dict(zip(STEREO_INPUTS, messages, strict=True)))

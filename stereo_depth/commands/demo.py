@@ -13,13 +13,13 @@ from pathlib import Path
 
 from stereo_depth.bag.ground_truth import read_ground_truth_index
 from stereo_depth.bag.process import FrameCallback, ProcessOptions, ProcessSummary, process_bag
-from stereo_depth.bag.reader import StereoMessages
 from stereo_depth.commands.common import add_param_options
 from stereo_depth.commands.process import settings_from
 from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.errors import BagError
 from stereo_depth.options import Settings
+from stereo_depth.sync import StereoSet
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 
@@ -60,7 +60,7 @@ def _middlebury_accuracy(args: argparse.Namespace, settings: Settings) -> None:
     truth = read_ground_truth_index(args.bags / "middlebury_gt")
     rows: list[str] = []
 
-    def check(index: int, frame: StereoMessages, result: StereoResult) -> None:
+    def check(index: int, frame: StereoSet, result: StereoResult) -> None:
         gt = truth.get(frame.stamp_ns)
         if gt is not None:
             acc = accuracy(result.disparity, gt.disparity, gt.mask)

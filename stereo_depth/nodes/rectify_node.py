@@ -32,7 +32,7 @@ class RectifyNode(StereoIONode):
         self._maps: tuple[Calibration, tuple[np.ndarray, np.ndarray] | None] | None = None
         self._rect = self.output(Image, "image_rect")
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         image_msg, info_msg = messages
         start = time.perf_counter()
         image = self.read_image(0, image_msg, settings)
