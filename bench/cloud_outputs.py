@@ -24,9 +24,10 @@ from sensor_msgs.msg import PointCloud2
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
-from stereo_depth.frames import OutputOptions, OutputState, StereoFrame, geometry_outputs, result_geometry
+from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
 from stereo_depth.machine import print_machine
 from stereo_depth.messages import make_header
+from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
@@ -71,7 +72,7 @@ def main() -> None:
         build, publish = [], []
         cloud = None
         for _ in range(args.repeat + 2):
-            result = pipeline.match(frame.left, frame.right, frame.camera)
+            result = match_frame(pipeline, frame)
             start = time.perf_counter()
             geometry = result_geometry(pipeline, frame, result)
             cloud = geometry_outputs(RCLPY_TYPES, header, geometry, options, ("points2",), state)["points2"]

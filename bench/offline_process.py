@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from stereo_depth.bag.process import ProcessOptions, frame_outputs, run_frame
+from stereo_depth.bag.process import FrameMessages, ProcessOptions
 from stereo_depth.bag.reader import StereoBagReader
 from stereo_depth.bag.types import rosbags_types, typestore
 from stereo_depth.bag.writer import BagWriter
@@ -39,7 +39,7 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import OpenCVMatcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.frames import OutputState
+from stereo_depth.frames import OutputState, decode_frame, frame_outputs, match_frame
 from stereo_depth.machine import print_machine
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
@@ -90,10 +90,14 @@ def ours_unwritten(bag: Path, profile: str) -> float:
     start = time.perf_counter()
     done = 0
     with StereoBagReader(bag) as reader:
-        for frame in reader.frames():
-            names = reader.topics.input_names
-            decoded, result = run_frame(pipeline, frame, reader.topics.rectified, options.output, names)
-            frame_outputs(types, pipeline, decoded, result, options, state)
+        names, rectified = reader.topics.input_names, reader.topics.rectified
+        for inputs in reader.frames():
+            out = FrameMessages()
+            frame = decode_frame(inputs, pipeline, options.output, rectified=rectified, names=names)
+            result = match_frame(pipeline, frame, names)
+            frame_outputs(
+                types, pipeline, frame, result, params, options.output, options.outputs, state, out.images, out.cloud
+            )
             done += 1
     return done / (time.perf_counter() - start)
 

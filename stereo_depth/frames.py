@@ -1,10 +1,12 @@
 """One frame from four input messages to output messages: the one path of the live nodes and `process`.
 
-stereo_node's two worker stages, disparity_node, point_cloud_node and `stereo-depth process` all call
-these functions, so live and offline outputs agree by construction, option for option:
+stereo_node's two worker stages, disparity_node, point_cloud_node, `stereo-depth process` and
+`check-calibration` all call these functions, so live and offline outputs agree by construction,
+option for option:
 
-- `decode_frame`: (left image, left info, right image, right info) -> `StereoFrame`, sizes checked and
-  every error naming the input it is about;
+- `decode_frame`: a `StereoSet` (the synchronizer's four inputs, by name) -> `StereoFrame`, sizes
+  checked and every error naming the input it is about;
+- `match_frame`, then `frame_outputs`: the two stages in order, the node's and `process`'s:
 - `image_outputs`: what matching gives (left/image_rect(_color), disparity, confidence);
 - `geometry_outputs`: what depth gives (depth, points2), one cloud builder for all.
 
@@ -15,11 +17,10 @@ come out (see messages.py).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import threading
-from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+import time
+from collections.abc import Callable, Collection
+from dataclasses import dataclass
 from typing import Any, NamedTuple, TypeVar
 
 import cv2
@@ -27,9 +28,10 @@ import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays
-from stereo_depth.core.params import StereoParams, _spec, coerce
+from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
-from stereo_depth.errors import CalibrationError, ImageError, ParameterError, StereoDepthError
+from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
+from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
     DEFAULT_MAX_PIXELS,
     CloudBuffer,
@@ -43,6 +45,8 @@ from stereo_depth.messages import (
     image_to_pipeline,
     stamp_to_ns,
 )
+from stereo_depth.options import OutputOptions
+from stereo_depth.sync import StereoSet
 
 T = TypeVar("T")
 
@@ -51,109 +55,30 @@ IMAGE_OUTPUTS = ("left/image_rect", "left/image_rect_color", "disparity", "confi
 GEOMETRY_OUTPUTS = ("depth", "depth/camera_info", "points2")
 OUTPUTS = (*IMAGE_OUTPUTS, *GEOMETRY_OUTPUTS)
 
-DEPTH_ENCODINGS = ("32FC1", "16UC1")
 MM_PER_M = 1000.0
 UINT16_MAX = 65535
 
-# How an input is named in errors when the caller has no topic names.
-INPUT_NAMES = ("left image", "left camera_info", "right image", "right camera_info")
+
+class InputNames(NamedTuple):
+    """What errors call each input of a StereoSet: its topic live and offline, these words otherwise."""
+
+    left_image: str = "left image"
+    left_info: str = "left camera_info"
+    right_image: str = "right image"
+    right_info: str = "right camera_info"
 
 
-@dataclass(frozen=True)
-class OutputOptions:
-    """How outputs are built, live and offline alike (ROS parameters of the nodes, `process --set`)."""
-
-    use_color: bool = field(default=True, metadata=_spec("Add PCL-style packed rgb to points2"))
-    avoid_point_cloud_padding: bool = field(
-        default=False, metadata=_spec("Pack points2 tightly (16-byte points) instead of stereo_image_proc's 32")
-    )
-    max_image_pixels: int = field(
-        default=DEFAULT_MAX_PIXELS,
-        metadata=_spec("Refuse input images with more pixels than this (protects memory)", 1, 1 << 28, 1),
-    )
-    depth_encoding: str = field(
-        default="32FC1",
-        metadata=_spec(
-            "depth image encoding: 32FC1 (metres, NaN invalid) or 16UC1 (millimetres, 0 invalid, REP 118; "
-            "beyond 65.535 m invalid)"
-        ),
-    )
-    min_depth: float = field(
-        default=0.0, metadata=_spec("Nearer points are invalid in depth and points2, metres (0 = no limit)", 0.0, 1e4)
-    )
-    max_depth: float = field(
-        default=0.0,
-        metadata=_spec("Farther points are invalid in depth and points2, metres (0 = no limit)", 0.0, 1e4),
-    )
-    mask_image: str = field(
-        default="",
-        metadata=_spec(
-            "Path of an image the size of the raw left image: where it is zero (robot body, bumper, lens "
-            "hood) nothing is output in depth or points2. Empty: no mask"
-        ),
-    )
-    organized_cloud: bool = field(
-        default=True,
-        metadata=_spec(
-            "points2 organized like the image (stereo_image_proc's layout, NaN invalid), or false: the valid "
-            "points only (height 1, is_dense, no NaN)"
-        ),
-    )
-    cloud_voxel_size: float = field(
-        default=0.0,
-        metadata=_spec("With organized_cloud false: one point per voxel of this edge, metres (0 = off)", 0.0, 100.0),
-    )
-    points_max_rate: float = field(
-        default=0.0,
-        metadata=_spec("Publish points2 at most this often, Hz, judged by stamps (0 = every frame)", 0.0, 1000.0),
-    )
-
-    def validate(self) -> OutputOptions:
-        for f in dataclasses.fields(self):
-            spec, value = f.metadata, getattr(self, f.name)
-            if spec.get("min") is not None and not spec["min"] <= value <= spec["max"]:
-                msg = f"{f.name} {value} is outside [{spec['min']}, {spec['max']}]"
-                raise ParameterError(msg)
-        checks = [
-            (
-                self.depth_encoding in DEPTH_ENCODINGS,
-                f"depth_encoding '{self.depth_encoding}' must be one of {', '.join(DEPTH_ENCODINGS)}",
-            ),
-            (
-                not (self.min_depth > 0 and self.max_depth > 0) or self.max_depth > self.min_depth,
-                f"max_depth ({self.max_depth}) must be greater than min_depth ({self.min_depth})",
-            ),
-            (
-                self.cloud_voxel_size == 0 or not self.organized_cloud,
-                "cloud_voxel_size thins the unorganized cloud: set organized_cloud to false as well",
-            ),
-        ]
-        for ok, reason in checks:
-            if not ok:
-                raise ParameterError(reason)
-        if self.mask_image:
-            read_mask(self.mask_image)  # refused now, not frame after frame
-        return self
-
-
-def output_option_names() -> list[str]:
-    return [f.name for f in dataclasses.fields(OutputOptions)]
-
-
-def make_output_options(values: Mapping[str, Any]) -> OutputOptions:
-    """OutputOptions from looser values (text from the command line, YAML), validated."""
-    kinds = {f.name: f.type for f in dataclasses.fields(OutputOptions)}
-    return OutputOptions(**{name: coerce(name, value, kinds[name]) for name, value in values.items()}).validate()
+INPUT_NAMES = InputNames()  # when the caller has no topic names
 
 
 @dataclass(frozen=True)
 class StereoFrame:
-    """The four inputs of one frame, decoded: what the pipeline matches and the outputs copy."""
+    """The inputs of one frame, decoded: what the pipeline matches and the outputs copy."""
 
     stamp_ns: int
     header: Any  # the left image's header, copied onto every output
     left: np.ndarray  # as the pipeline takes them: mono (8 or 16 bit) or BGR
-    right: np.ndarray
+    right: np.ndarray | None  # None: the set had no right image (point_cloud_node reads a disparity instead)
     camera: StereoCamera  # the pipeline's cached camera for this calibration
     rectified: bool  # the images are rectified already (image_rect inputs)
 
@@ -188,42 +113,45 @@ def frame_camera(pipeline: StereoPipeline, left_info: Any, right_info: Any, name
 
 
 def decode_frame(
-    messages: Sequence[Any],
+    inputs: StereoSet,
     pipeline: StereoPipeline,
     options: OutputOptions,
     *,
     rectified: bool,
-    names: Sequence[str] = INPUT_NAMES,
+    names: InputNames = INPUT_NAMES,
 ) -> StereoFrame:
-    """(left image, left info, right image, right info) -> StereoFrame; `names` (the topics) name the
-    input each error is about, so a user knows which driver to fix."""
-    left_msg, left_info, right_msg, right_info = messages
-    left = named(names[0], decode_image, left_msg, options.max_image_pixels)
-    right = named(names[2], decode_image, right_msg, options.max_image_pixels)
-    camera = frame_camera(pipeline, left_info, right_info, (names[1], names[3]))
-    (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
-    if (lh, lw) != (rh, rw):
-        msg = (
-            f"{names[0]} is {lw}x{lh} but {names[2]} is {rw}x{rh}; both cameras must "
-            "stream one resolution (check each driver's mode, binning and ROI)"
-        )
-        raise ImageError(msg)
+    """A matched set's images and calibration, sizes checked; `names` (the topics) name the input each
+    error is about, so a user knows which driver to fix."""
+    left = named(names.left_image, decode_image, inputs.left_image, options.max_image_pixels)
+    (lh, lw), images, right = left.shape[:2], f"{names.left_image} is", None
+    if inputs.right_image is not None:
+        right = named(names.right_image, decode_image, inputs.right_image, options.max_image_pixels)
+        rh, rw = right.shape[:2]
+        if (lh, lw) != (rh, rw):
+            msg = (
+                f"{names.left_image} is {lw}x{lh} but {names.right_image} is {rw}x{rh}; both cameras must "
+                "stream one resolution (check each driver's mode, binning and ROI)"
+            )
+            raise ImageError(msg)
+        images = f"{names.left_image} and {names.right_image} are"
+    camera = frame_camera(pipeline, inputs.left_info, inputs.right_info, (names.left_info, names.right_info))
     if (lw, lh) != (camera.width, camera.height):
         msg = (
-            f"{names[0]} and {names[2]} are {lw}x{lh} but {names[1]} and {names[3]} "
+            f"{images} {lw}x{lh} but {names.left_info} and {names.right_info} "
             f"say {camera.width}x{camera.height}; publish the calibration of this camera mode"
         )
         raise CalibrationError(msg)
-    header = left_msg.header
+    header = inputs.left_image.header
     return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
 
 
-def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: Sequence[str] = INPUT_NAMES) -> StereoResult:
+def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: InputNames = INPUT_NAMES) -> StereoResult:
     """Rectify, match and filter one frame (`pipeline.match`); errors name both image inputs."""
+    assert frame.right is not None, "a frame without a right image cannot be matched"
     try:
         return pipeline.match(frame.left, frame.right, frame.camera, rectified=frame.rectified)
     except StereoDepthError as exc:
-        raise type(exc)(f"{names[0]} and {names[2]}: {exc}") from exc
+        raise type(exc)(f"{names.left_image} and {names.right_image}: {exc}") from exc
 
 
 # ---------------------------------------------------------------- match outputs
@@ -285,28 +213,6 @@ def image_outputs(
 
 
 # ---------------------------------------------------------------- geometry outputs
-
-
-def read_mask(path: str) -> np.ndarray:
-    """The mask image as bool (True: may be output), read once per file version."""
-    try:
-        stat = Path(path).stat()
-    except OSError as exc:
-        msg = f"mask_image {path}: cannot read it ({exc.strerror})"
-        raise ParameterError(msg) from exc
-    return _read_mask(path, stat.st_mtime_ns, stat.st_size)
-
-
-@functools.lru_cache(maxsize=4)
-def _read_mask(path: str, mtime_ns: int, size: int) -> np.ndarray:
-    del mtime_ns, size  # the cache key: a changed file is read again
-    image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        msg = f"mask_image {path}: not an image OpenCV can read (use a PNG, zero where nothing is output)"
-        raise ParameterError(msg)
-    mask: np.ndarray = image > 0
-    mask.setflags(write=False)
-    return mask
 
 
 class RectifiedMasks:
@@ -460,3 +366,48 @@ def geometry_outputs(
             voxel_size=options.cloud_voxel_size,
         )
     return messages
+
+
+# ---------------------------------------------------------------- the two stages in order
+
+
+def run_now(stage: Callable[[], None]) -> None:
+    stage()
+
+
+def frame_outputs(
+    types: MessageTypes,
+    pipeline: StereoPipeline,
+    frame: StereoFrame,
+    result: StereoResult,
+    params: StereoParams,
+    output: OutputOptions,
+    wanted: Collection[str],
+    state: OutputState,
+    send_images: Callable[[dict[str, Any]], None],
+    send_cloud: Callable[[dict[str, Any], Geometry | None], None],
+    *,
+    run_cloud_stage: Callable[[Callable[[], None]], None] = run_now,
+    with_geometry: bool = False,
+) -> None:
+    """What follows `match_frame`, in stereo_node's order, for the node and `process` alike: the image
+    outputs in `wanted` go to `send_images` at once; then the cloud stage builds those of depth,
+    depth/camera_info and points2 in `wanted` that are due (points_max_rate), with the geometry they
+    come from, for `send_cloud`, which ends the frame. `run_cloud_stage` runs that stage: at once
+    (`process`) or on the node's second thread. Nothing due (and no `with_geometry`, which a PLY
+    needs): `send_cloud({}, None)` at once.
+    """
+    send_images(image_outputs(types, frame.header, result, params, wanted))
+    due = state.cloud_rate.wanted([name for name in GEOMETRY_OUTPUTS if name in wanted], frame.stamp_ns, output)
+    if not due and not with_geometry:
+        send_cloud({}, None)
+        return
+
+    def cloud_stage() -> None:
+        geometry = result_geometry(pipeline, frame, result)  # times "depth"
+        start = time.perf_counter()
+        messages = geometry_outputs(types, frame.header, geometry, output, due, state)
+        result.timings_ms["points"] = (time.perf_counter() - start) * 1000.0
+        send_cloud(messages, geometry)
+
+    run_cloud_stage(cloud_stage)

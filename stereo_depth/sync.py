@@ -24,11 +24,12 @@ set is emitted, everything older is dropped and counted. A stamp that goes back 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from stereo_depth.errors import ParameterError
+from stereo_depth.options import NodeOptions
 
 Stamped = tuple[int, Any]
 Choice = tuple[Stamped, bool] | None  # a camera_info and whether its stamp is the set's; None: unknown
@@ -76,7 +77,7 @@ class Synchronizer:
     def __init__(
         self,
         n_inputs: int,
-        queue_size: int = 5,
+        queue_size: int = NodeOptions().queue_size,  # its range is checked there
         approximate: bool = False,
         tolerance_ns: int = 0,
         time_jump_ns: int = 1_000_000_000,
@@ -86,9 +87,6 @@ class Synchronizer:
     ) -> None:
         if not 2 <= n_inputs <= 4:
             msg = f"a synchronizer takes 2 to 4 inputs, not {n_inputs}"
-            raise ParameterError(msg)
-        if queue_size < 1:
-            msg = f"queue_size {queue_size} must be at least 1"
             raise ParameterError(msg)
         if tolerance_ns < 0:
             msg = f"approximate sync tolerance {tolerance_ns} ns must not be negative"
@@ -298,3 +296,26 @@ class Synchronizer:
             return None
         self.counters.matched += 1
         return stamps[0], tuple(messages)
+
+
+# A stereo camera's synchronizer inputs, in this order; each camera_info pairs by its image's stamp.
+STEREO_INPUTS = ("left_image", "left_info", "right_image", "right_info")
+STEREO_CALIBRATIONS = {1: 0, 3: 2}
+
+
+@dataclass(frozen=True)
+class StereoSet:
+    """One matched set of a stereo camera's four inputs, by name: what the synchronizer pairs for the
+    stereo nodes and for the bag reader alike, and what frames.decode_frame reads. Messages of either
+    flavour (rclpy or rosbags); an image may be a CompressedImage; a missing input is None."""
+
+    stamp_ns: int  # the set's stamp, as the synchronizer gave it
+    left_image: Any
+    left_info: Any
+    right_image: Any
+    right_info: Any
+
+    @classmethod
+    def paired(cls, stamp_ns: int, messages: Sequence[Any]) -> StereoSet:
+        """A set of a synchronizer whose inputs are STEREO_INPUTS."""
+        return cls(stamp_ns, **dict(zip(STEREO_INPUTS, messages, strict=True)))

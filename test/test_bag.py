@@ -20,7 +20,7 @@ from stereo_depth.bag.export import read_ply
 from stereo_depth.bag.ground_truth import read_ground_truth_index
 from stereo_depth.bag.make import StreamLayout, write_stream
 from stereo_depth.bag.process import ProcessOptions, ProcessSummary, process_bag
-from stereo_depth.bag.reader import SyncPolicy, find_stereo_topics, read_messages
+from stereo_depth.bag.reader import find_stereo_topics, read_messages
 from stereo_depth.bag.sources import read_frames
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
@@ -31,6 +31,7 @@ from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import BagError, ParameterError
 from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import camera_info_from_msg, cloud_to_arrays, disparity_from_msg, image_to_array, stamp_to_ns
+from stereo_depth.options import NodeOptions
 
 from conftest import DATA, EUROC, SCENES, read_image
 
@@ -480,7 +481,7 @@ def test_unpaired_stamps_are_reported_and_approximate_sync_pairs_them(tmp_path: 
     with pytest.raises(BagError, match=r"from 3 left / 3 right images: no set .* \(12 unmatched\).*--approximate-sync"):
         process_bag(bag, tmp_path / "exact", make_params())
     assert not (tmp_path / "exact").exists()
-    options = ProcessOptions(sync=SyncPolicy.from_node_parameters(True, 5, 0.005))
+    options = ProcessOptions(sync=NodeOptions(approximate_sync=True, approximate_sync_tolerance_seconds=0.005))
     assert process_bag(bag, tmp_path / "approx", make_params(), options).frames_out == 3
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -190,6 +191,21 @@ def test_check_calibration_says_warn_with_a_slightly_rotated_calibration(
     lines = stdout.strip().splitlines()
     assert all(line.endswith("WARN") for line in lines[1:7])
     assert lines[-1].startswith("verdict: WARN: 6 of 6 frames judged")
+
+
+def test_check_calibration_refuses_a_calibration_of_another_camera_mode(
+    euroc_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Its frames are decoded as the nodes decode them (frames.decode_frame): a calibration of another
+    image size is refused with the inputs named, the bag's images and the calibration files."""
+    infos = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
+    for side, info in zip(("left", "right"), infos, strict=True):
+        other_mode = dataclasses.replace(info, width=376, height=240)
+        (tmp_path / f"{side}.yaml").write_text(camera_info_to_yaml(other_mode, side))
+    code, stdout, stderr = run_cli(["check-calibration", str(euroc_bag), "--camera-info", str(tmp_path)], capsys)
+    assert code == 1 and "verdict" not in stdout
+    assert stderr.startswith("ERROR: ") and stderr.count("\n") == 1
+    assert "are 752x480 but left --camera-info and right --camera-info say 376x240" in stderr
 
 
 def test_a_second_calibration_replaces_the_first_as_a_whole(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from stereo_depth.core.metrics import Accuracy, accuracy
+from stereo_depth.core.option_fields import spec_of
 from stereo_depth.core.params import CENSUS_BITS, CENSUS_P2_PER_BIT, StereoParams, make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, ParameterError
@@ -103,10 +104,10 @@ SANE_WINDOW = 45
 
 def sweep_settings() -> list[tuple[str, Any]]:
     """(name, value) for each corner of the accepted ranges: the sweep's rows."""
-    spec = {f.name: f.metadata for f in dataclasses.fields(StereoParams)}
-    corners: list[tuple[str, Any]] = [("disparity_range", spec["disparity_range"]["max"])]
+    spec = {f.name: spec_of(f) for f in dataclasses.fields(StereoParams)}
+    corners: list[tuple[str, Any]] = [("disparity_range", spec["disparity_range"].hi)]
     for name in SWEPT:
-        lo, hi = spec[name]["min"], spec[name]["max"]
+        lo, hi = spec[name].lo, spec[name].hi
         corners += [(name, type(getattr(StereoParams(), name))(v)) for v in (lo, hi)]
     corners.insert(3, ("correlation_window_size", SANE_WINDOW))
     corners.insert(7, ("P2", float(CENSUS_P2_PER_BIT * CENSUS_BITS)))  # census_sgm's largest at its window 1

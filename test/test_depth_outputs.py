@@ -23,8 +23,8 @@ from test_nodes import Pair, StereoInput, euroc_pair
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
-from stereo_depth.frames import OutputOptions
 from stereo_depth.messages import cloud_to_arrays, disparity_from_msg, image_to_array, stamp_to_ns
+from stereo_depth.options import OutputOptions
 
 NS = "/nav"
 BAG = Path(__file__).resolve().parents[1] / "bags" / "euroc_raw"

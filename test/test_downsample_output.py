@@ -59,5 +59,5 @@ def test_disparity_message_parameters_follow_the_output_size() -> None:
 
 
 def test_unknown_output_size_is_refused_with_the_choices() -> None:
-    with pytest.raises(ParameterError, match="downsample_output 'half' must be one of full, processed"):
+    with pytest.raises(ParameterError, match="downsample_output 'half' is unknown; choose one of full, processed"):
         make_params("fast", {"downsample_output": "half"})

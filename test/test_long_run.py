@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from ros_helpers import NodeProcess, RosHarness, wait_until
 
-from stereo_depth.settings import NodeOptions
+from stereo_depth.options import NodeOptions
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from soak import Soak, rss_mb

@@ -21,10 +21,11 @@ from std_msgs.msg import Header
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.params import PROFILES, StereoParams
-from stereo_depth.frames import OutputOptions
+from stereo_depth.options import NodeOptions, OutputOptions, Settings
+from stereo_depth.options_docs import render_config_yaml
 from stereo_depth.ros import problems
 from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
-from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings, render_config_yaml
+from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.stereo_io import LatestWorker
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
@@ -164,7 +165,7 @@ def test_latest_worker_runs_at_most_parallel_jobs_at_once(parallel: int) -> None
 
 def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     assert CONFIG.read_text() == render_config_yaml(), (
-        "config/stereo_depth.yaml is stale: python -m stereo_depth.ros.parameters > config/stereo_depth.yaml"
+        "config/stereo_depth.yaml is stale: python -m stereo_depth.options_docs yaml > config/stereo_depth.yaml"
     )
     values = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
     expected = {"profile": "default"}

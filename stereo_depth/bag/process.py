@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,34 +17,23 @@ from typing import Any
 import cv2
 
 from stereo_depth.bag.export import disparity_picture, write_ply
-from stereo_depth.bag.reader import ReadStats, StereoBagReader, StereoMessages, SyncPolicy, TimeWindow, TopicChoice
+from stereo_depth.bag.reader import ReadStats, StereoBagReader, TimeWindow, TopicChoice
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.errors import BagError, StereoDepthError
-from stereo_depth.frames import (
-    GEOMETRY_OUTPUTS,
-    OUTPUTS,
-    Geometry,
-    OutputOptions,
-    OutputState,
-    StereoFrame,
-    decode_frame,
-    geometry_outputs,
-    image_outputs,
-    match_frame,
-    result_geometry,
-)
-from stereo_depth.messages import MessageTypes
+from stereo_depth.frames import OUTPUTS, Geometry, OutputState, decode_frame, frame_outputs, match_frame
+from stereo_depth.options import NodeOptions, OutputOptions
+from stereo_depth.sync import StereoSet
 
 
 @dataclass
 class ProcessOptions:
     namespace: str | None = None
     topics: TopicChoice | None = None  # --left/--right/--camera-info (its namespace wins over the one above)
-    sync: SyncPolicy = field(default_factory=SyncPolicy)
+    sync: NodeOptions = field(default_factory=NodeOptions)  # its sync options, as the node's
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
     outputs: tuple[str, ...] = OUTPUTS  # what stereo_node publishes by default (colour, confidence: when there)
@@ -111,35 +100,20 @@ class ProcessSummary:
         return out
 
 
-def run_frame(
-    pipeline: StereoPipeline, frame: StereoMessages, rectified: bool, output: OutputOptions, names: Sequence[str]
-) -> tuple[StereoFrame, StereoResult]:
-    """Decode and match one matched set, as stereo_node's first stage does; `names`: the input topics."""
-    messages = (frame.left_image, frame.left_info, frame.right_image, frame.right_info)
-    decoded = decode_frame(messages, pipeline, output, rectified=rectified, names=names)
-    return decoded, match_frame(pipeline, decoded, names)
+class FrameMessages:
+    """One frame's outputs as `frame_outputs` hands them on, written only once the frame is complete
+    (a frame that fails in its cloud stage leaves nothing in the bag)."""
 
+    def __init__(self) -> None:
+        self.messages: dict[str, Any] = {}
+        self.geometry: Geometry | None = None
 
-def frame_outputs(
-    types: MessageTypes,
-    pipeline: StereoPipeline,
-    frame: StereoFrame,
-    result: StereoResult,
-    options: ProcessOptions,
-    state: OutputState,
-) -> tuple[dict[str, Any], Geometry | None]:
-    """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
-    the geometry they were built from (None when no depth output or PLY was asked for)."""
-    messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
-    wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
-    wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
-    if not wanted and options.ply_dir is None:
-        return messages, None
-    geometry = result_geometry(pipeline, frame, result)
-    start = time.perf_counter()
-    messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, state))
-    result.timings_ms["points"] = (time.perf_counter() - start) * 1000.0  # as stereo_node times it
-    return messages, geometry
+    def images(self, messages: dict[str, Any]) -> None:
+        self.messages.update(messages)
+
+    def cloud(self, messages: dict[str, Any], geometry: Geometry | None) -> None:
+        self.messages.update(messages)
+        self.geometry = geometry
 
 
 class Progress:
@@ -165,14 +139,14 @@ class Progress:
 
 def _export(
     index: int,
-    frame: StereoMessages,
+    stamp_ns: int,
     result: StereoResult,
     geometry: Geometry | None,
     params: StereoParams,
     options: ProcessOptions,
     summary: ProcessSummary,
 ) -> None:
-    stem = f"{index:04d}_{frame.stamp_ns}"
+    stem = f"{index:04d}_{stamp_ns}"
     left = result.left_rect_color if result.left_rect_color is not None else result.left_rect
     if options.png_dir is not None:
         path = options.png_dir / f"{stem}.png"
@@ -185,7 +159,7 @@ def _export(
         summary.clouds.append(path)
 
 
-FrameCallback = Callable[[int, StereoMessages, StereoResult], None]
+FrameCallback = Callable[[int, StereoSet, StereoResult], None]
 
 
 def process_bag(
@@ -218,24 +192,39 @@ def process_bag(
         ) as writer,
     ):
         topics = reader.topics
+        names = topics.input_names
         progress = Progress(reader.count(topics.names[0]), options.progress)
         state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
-        for frame in reader.frames():
+        for inputs in reader.frames():
+            out = FrameMessages()
             try:
-                decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
-                messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
+                frame = decode_frame(inputs, pipeline, options.output, rectified=topics.rectified, names=names)
+                result = match_frame(pipeline, frame, names)
+                frame_outputs(
+                    types,
+                    pipeline,
+                    frame,
+                    result,
+                    params,
+                    options.output,
+                    options.outputs,
+                    state,
+                    out.images,
+                    out.cloud,
+                    with_geometry=options.ply_dir is not None,
+                )
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
-            for name, message in messages.items():
-                writer.write(topics.output(name), message, frame.stamp_ns)
+            for name, message in out.messages.items():
+                writer.write(topics.output(name), message, inputs.stamp_ns)
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))
             for stage, ms in result.timings_ms.items():
                 summary.stage_ms[stage] += ms
-            _export(summary.frames_out, frame, result, geometry, params, options, summary)
+            _export(summary.frames_out, inputs.stamp_ns, result, out.geometry, params, options, summary)
             if on_frame is not None:
-                on_frame(summary.frames_out, frame, result)
+                on_frame(summary.frames_out, inputs, result)
             summary.frames_out += 1
             progress.update(summary.frames_out)
         progress.close()

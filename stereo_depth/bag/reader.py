@@ -22,12 +22,12 @@ from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.types import deserialize, rosbags_types
 from stereo_depth.core.camera import CameraInfo
 from stereo_depth.errors import BagError
+from stereo_depth.frames import InputNames
 from stereo_depth.messages import camera_info_to_msg, same_calibration, stamp_to_ns
-from stereo_depth.sync import SyncCounters, Synchronizer
+from stereo_depth.options import NodeOptions
+from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet, SyncCounters, Synchronizer
 
 ROLES = ("left_image", "left_info", "right_image", "right_info")
-CALIBRATION_OF_IMAGE = {1: 0, 3: 2}  # camera_info role -> image role (see sync.Synchronizer)
-NO_LIMIT_NS = 1 << 62
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
@@ -54,10 +54,12 @@ class StereoTopics:
         return self.names[0], self.names[2]
 
     @property
-    def input_names(self) -> tuple[str, str, str, str]:
+    def input_names(self) -> InputNames:
         """What errors call each of the four inputs: its topic, or the calibration file that replaces it."""
         left_image, left_info, right_image, right_info = self.names
-        return left_image, left_info or "left --camera-info", right_image, right_info or "right --camera-info"
+        return InputNames(
+            left_image, left_info or "left --camera-info", right_image, right_info or "right --camera-info"
+        )
 
     def describe(self) -> str:
         return " + ".join(n for n in self.names if n is not None)
@@ -82,20 +84,6 @@ class TopicChoice:
 
 
 @dataclass(frozen=True)
-class SyncPolicy:
-    """The live node's sync parameters and defaults (queue_size, approximate_sync and its tolerance)."""
-
-    approximate: bool = False
-    queue_size: int = 5
-    tolerance_ns: int = NO_LIMIT_NS
-
-    @classmethod
-    def from_node_parameters(cls, approximate: bool, queue_size: int, tolerance_s: float) -> SyncPolicy:
-        """As the node reads approximate_sync_tolerance_seconds: 0 means no limit (stereo_image_proc)."""
-        return cls(approximate, queue_size, round(tolerance_s * 1e9) if tolerance_s > 0 else NO_LIMIT_NS)
-
-
-@dataclass(frozen=True)
 class TimeWindow:
     """The sets one shard of a long bag owns: set stamps in [start_ns, stop_ns) (None: unbounded).
 
@@ -113,17 +101,6 @@ class TimeWindow:
         return (self.start_ns is None or stamp_ns >= self.start_ns) and (
             self.stop_ns is None or stamp_ns < self.stop_ns
         )
-
-
-@dataclass
-class StereoMessages:
-    """One matched set of the four inputs, as deserialized messages (Image or CompressedImage)."""
-
-    stamp_ns: int
-    left_image: Any
-    left_info: Any
-    right_image: Any
-    right_info: Any
 
 
 def _normalise(namespace: str) -> str:
@@ -293,12 +270,12 @@ class StereoBagReader:
         path: Path | str,
         *,
         namespace: str | None = None,
-        sync: SyncPolicy | None = None,
+        sync: NodeOptions | None = None,
         choice: TopicChoice | None = None,
         window: TimeWindow | None = None,
     ) -> None:
         self.path = Path(path)
-        self.policy = sync or SyncPolicy()
+        self.policy = sync or NodeOptions()  # the live node's sync options and defaults
         self.choice = choice or TopicChoice(namespace=namespace)
         self.window = window or TimeWindow()
         self._reader = open_reader(self.path)
@@ -324,7 +301,7 @@ class StereoBagReader:
         self._reader.close()
         return False
 
-    def frames(self) -> Iterator[StereoMessages]:
+    def frames(self) -> Iterator[StereoSet]:
         """Matched sets in recording order; counts in `stats` what could not be paired. With a
         calibration file only the two images are paired, and each gets that calibration as its
         camera_info (stamped like the image), so what follows cannot tell the two apart; without
@@ -333,9 +310,9 @@ class StereoBagReader:
         sync = Synchronizer(
             len(inputs),
             self.policy.queue_size,
-            self.policy.approximate,
+            self.policy.approximate_sync,
             self.policy.tolerance_ns,
-            calibrations=CALIBRATION_OF_IMAGE if self.choice.reads_info else None,
+            calibrations=STEREO_CALIBRATIONS if self.choice.reads_info else None,
             same_calibration=same_calibration,
         )
         self.stats.sync = sync.counters
@@ -356,24 +333,23 @@ class StereoBagReader:
                 self.stats.matched += 1
                 if self.stats.first_ns is None:
                     self.stats.first_ns = stamp
-                yield StereoMessages(stamp, *self._four(msgs))
+                yield self._stereo_set(stamp, msgs)
         for stamp, msgs in sync.flush():
             self.stats.matched += 1
-            yield StereoMessages(stamp, *self._four(msgs))
+            yield self._stereo_set(stamp, msgs)
         self.stats.unmatched_at_end = sync.pending()
 
-    def _four(self, messages: tuple[Any, ...]) -> tuple[Any, Any, Any, Any]:
+    def _stereo_set(self, stamp_ns: int, messages: tuple[Any, ...]) -> StereoSet:
         calibration = self.choice.calibration
         if self.choice.reads_info:
-            left_image, left_info, right_image, right_info = messages
-            return left_image, left_info, right_image, right_info
+            return StereoSet.paired(stamp_ns, messages)
         left_image, right_image = messages
         if calibration is None:
-            return left_image, None, right_image, None
+            return StereoSet(stamp_ns, left_image, None, right_image, None)
         types = rosbags_types()
         left_info = camera_info_to_msg(types, left_image.header, calibration[0])
         right_info = camera_info_to_msg(types, right_image.header, calibration[1])
-        return left_image, left_info, right_image, right_info
+        return StereoSet(stamp_ns, left_image, left_info, right_image, right_info)
 
     def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
         """(topic, message) in recording order. Damage found while reading (a cut-off file, a corrupt

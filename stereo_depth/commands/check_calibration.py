@@ -10,7 +10,6 @@ import numpy as np
 
 from stereo_depth.commands.common import add_topic_options, topic_choice
 from stereo_depth.core.calibration_check import CalibrationCheck, Level, check_rectified_pair, verdict
-from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import CalibrationError
 
 if TYPE_CHECKING:
@@ -38,22 +37,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def check_bag(path: Path, choice: TopicChoice, every: int) -> list[tuple[int, CalibrationCheck]]:
     """(stamp, check) for every Nth frame, rectified the way stereo_node rectifies it."""
     from stereo_depth.bag.reader import StereoBagReader  # rosbags only when a bag is read
-    from stereo_depth.frames import decode_image
-    from stereo_depth.messages import camera_info_from_msg
+    from stereo_depth.core.pipeline import StereoPipeline
+    from stereo_depth.frames import decode_frame
+    from stereo_depth.options import OutputOptions
 
     results = []
-    camera: StereoCamera | None = None
+    pipeline = StereoPipeline()  # only its calibration cache is used: one StereoCamera per calibration
     with StereoBagReader(path, choice=choice) as reader:
-        for index, frame in enumerate(reader.frames()):
+        rectified, names = reader.topics.rectified, reader.topics.input_names
+        for index, inputs in enumerate(reader.frames()):
             if index % every:
                 continue
-            left, right = decode_image(frame.left_image), decode_image(frame.right_image)
-            if not reader.topics.rectified:
-                left_info, right_info = camera_info_from_msg(frame.left_info), camera_info_from_msg(frame.right_info)
-                if camera is None or camera.key() != (left_info.key(), right_info.key()):
-                    camera = StereoCamera(left_info, right_info)
-                left, right = camera.rectify(left, "left"), camera.rectify(right, "right")
-            results.append((frame.stamp_ns, check_rectified_pair(left, right)))
+            frame = decode_frame(inputs, pipeline, OutputOptions(), rectified=rectified, names=names)
+            left, right = frame.left, frame.right
+            assert right is not None
+            if not rectified:
+                left, right = frame.camera.rectify(left, "left"), frame.camera.rectify(right, "right")
+            results.append((inputs.stamp_ns, check_rectified_pair(left, right)))
     return results
 
 

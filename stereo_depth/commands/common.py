@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping
+import dataclasses
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,6 +13,7 @@ from stereo_depth.formats.calibration_files import read_stereo_calibration
 if TYPE_CHECKING:
     from stereo_depth.bag.reader import TopicChoice
 
+from stereo_depth.core.option_fields import spec_of
 from stereo_depth.core.params import PROFILES, StereoParams, make_params, parse_assignments
 
 
@@ -58,3 +60,18 @@ def topic_choice(args: argparse.Namespace, need_info: bool = True) -> TopicChoic
     path = getattr(args, "camera_info", None)
     calibration = read_stereo_calibration(path) if path is not None else None
     return TopicChoice(args.namespace, args.left, args.right, args.left_info, args.right_info, calibration, need_info)
+
+
+def add_option_flags(parser: argparse.ArgumentParser, options: type, names: Sequence[str]) -> None:
+    """One flag per option, derived from its field: `queue_size` -> `--queue-size N`, a bool ->
+    `--approximate-sync` / `--no-approximate-sync`; its doc is the help. Not given: None (the
+    parameter file's value or the default applies)."""
+    fields = {f.name: f for f in dataclasses.fields(options)}
+    for name in names:
+        f, default = fields[name], getattr(options(), name)
+        flag, doc = "--" + name.replace("_", "-"), spec_of(f).doc.replace("%", "%%")
+        if f.type in ("bool", bool):
+            parser.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=doc)
+        else:
+            kind, metavar = {"int": (int, "N"), "float": (float, "X")}.get(str(f.type), (str, "TEXT"))
+            parser.add_argument(flag, dest=name, type=kind, metavar=metavar, help=f"{doc} (default {default})")

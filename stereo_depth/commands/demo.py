@@ -13,12 +13,13 @@ from pathlib import Path
 
 from stereo_depth.bag.ground_truth import read_ground_truth_index
 from stereo_depth.bag.process import FrameCallback, ProcessOptions, ProcessSummary, process_bag
-from stereo_depth.bag.reader import StereoMessages
-from stereo_depth.commands.process import params_from
+from stereo_depth.commands.common import add_param_options
+from stereo_depth.commands.process import settings_from
 from stereo_depth.core.metrics import accuracy
-from stereo_depth.core.params import PROFILES
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.errors import BagError
+from stereo_depth.options import Settings
+from stereo_depth.sync import StereoSet
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 
@@ -27,20 +28,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser = sub.add_parser("demo", help="process the bundled bags into out/: pictures, a PLY, timings")
     parser.add_argument("--out", type=Path, default=Path("out"), metavar="OUT_DIR", help="default %(default)s")
     parser.add_argument("--bags", type=Path, default=BAGS, metavar="DIR", help="where euroc_raw and middlebury are")
-    parser.add_argument("--profile", default="default", choices=sorted(PROFILES))
-    parser.add_argument("--set", dest="assignments", action="append", default=[], metavar="NAME=VALUE")
-    parser.set_defaults(run=run, params=None)
+    add_param_options(parser)
+    parser.set_defaults(run=run)
 
 
-def _process(name: str, args: argparse.Namespace, on_frame: FrameCallback | None = None) -> ProcessSummary:
+def _process(
+    name: str, args: argparse.Namespace, settings: Settings, on_frame: FrameCallback | None = None
+) -> ProcessSummary:
     source = args.bags / name
     if not source.is_dir():
         msg = f"{source} is missing; the demo needs the bundled bags (git checkout of bags/)"
         raise BagError(msg)
     options = ProcessOptions(
-        overwrite=True, png_dir=args.out / f"{name}_png", ply_dir=args.out / f"{name}_ply", ply_frames=1
+        output=settings.output,
+        overwrite=True,
+        png_dir=args.out / f"{name}_png",
+        ply_dir=args.out / f"{name}_ply",
+        ply_frames=1,
     )
-    summary = process_bag(source, args.out / name, params_from(args), options, on_frame)
+    assert settings.stereo is not None
+    summary = process_bag(source, args.out / name, settings.stereo, options, on_frame)
     print(f"\n== {source} -> {args.out / name}")
     for line in summary.lines():
         print(line)
@@ -49,11 +56,11 @@ def _process(name: str, args: argparse.Namespace, on_frame: FrameCallback | None
     return summary
 
 
-def _middlebury_accuracy(args: argparse.Namespace) -> None:
+def _middlebury_accuracy(args: argparse.Namespace, settings: Settings) -> None:
     truth = read_ground_truth_index(args.bags / "middlebury_gt")
     rows: list[str] = []
 
-    def check(index: int, frame: StereoMessages, result: StereoResult) -> None:
+    def check(index: int, frame: StereoSet, result: StereoResult) -> None:
         gt = truth.get(frame.stamp_ns)
         if gt is not None:
             acc = accuracy(result.disparity, gt.disparity, gt.mask)
@@ -62,17 +69,17 @@ def _middlebury_accuracy(args: argparse.Namespace) -> None:
                 f"density {acc.density:6.1%}"
             )
 
-    _process("middlebury", args, check)
+    _process("middlebury", args, settings, check)
     print("accuracy against Middlebury ground truth (non-occluded pixels):")
     print("\n".join(rows) if rows else "  no frame matched the ground truth stamps")
 
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    params_from(args)  # refuse bad parameters before any work
+    settings = settings_from(args)  # refuse bad parameters before any work
     args.out.mkdir(parents=True, exist_ok=True)
-    euroc = _process("euroc_raw", args)
-    _middlebury_accuracy(args)
+    euroc = _process("euroc_raw", args, settings)
+    _middlebury_accuracy(args, settings)
     if euroc.pictures:
         print(f"\nlook first at {euroc.pictures[len(euroc.pictures) // 2]}")
     print(f"demo done in {time.perf_counter() - start:.1f} s; everything is under {args.out}/")

@@ -11,14 +11,22 @@ from typing import Any
 import yaml
 
 from stereo_depth.bag.process import ProcessOptions, process_bag
-from stereo_depth.bag.reader import SyncPolicy
 from stereo_depth.bag.writer import STORAGES
-from stereo_depth.commands.common import add_param_options, add_topic_options, topic_choice
+from stereo_depth.commands.common import add_option_flags, add_param_options, add_topic_options, topic_choice
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
-from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
+from stereo_depth.core.option_fields import option_names
+from stereo_depth.core.params import COMPAT_ALIASES, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
-from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
-from stereo_depth.settings import unknown_parameters_line
+from stereo_depth.frames import OUTPUTS
+from stereo_depth.options import (
+    SYNC_OPTIONS,
+    NodeOptions,
+    OutputOptions,
+    Settings,
+    node_options,
+    output_options,
+    unknown_parameters_line,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -51,19 +59,7 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
         "--params", type=Path, metavar="FILE", help="ROS parameter YAML (node: ros__parameters: ...); --set wins"
     )
     add_topic_options(parser)
-    parser.add_argument(
-        "--approximate-sync",
-        action="store_true",
-        default=None,
-        help="pair by nearest stamps instead of equal ones (the node's approximate_sync)",
-    )
-    parser.add_argument(
-        "--approximate-sync-tolerance",
-        type=float,
-        metavar="SECONDS",
-        help="largest stamp difference inside one approximate set (default 0: no limit, as the node)",
-    )
-    parser.add_argument("--queue-size", type=int, help="messages kept per input while pairing (default 5, as the node)")
+    add_option_flags(parser, NodeOptions, SYNC_OPTIONS)  # pairing as the node's parameters (and --params) say
     parser.add_argument("--png", type=Path, metavar="DIR", help="write rectified left | colourised disparity per frame")
     parser.add_argument("--ply", type=Path, metavar="DIR", help="write a coloured point cloud (binary PLY) per frame")
     parser.add_argument(
@@ -114,62 +110,37 @@ def _ros_parameters(node: Any) -> list[dict[str, Any]]:
     return [section for value in node.values() for section in _ros_parameters(value)]
 
 
-def file_parameters(args: argparse.Namespace) -> dict[str, Any]:
-    return read_params_file(args.params) if getattr(args, "params", None) else {}
-
-
-def _given(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(processing, output) values: those of --params FILE, then --set on top. An unknown --set name
-    is an error; unknown keys in the file (it may configure other nodes too) get one warning line."""
-    stereo_names, output_names = {*field_names(), *COMPAT_ALIASES}, set(output_option_names())
-    from_file = file_parameters(args)
+def settings_from(args: argparse.Namespace) -> Settings:
+    """What `process` (and `demo`) run with: --profile, then --params FILE (read here, once), then --set
+    and the sync flags on top. An unknown --set name is an error; keys of the file that no stereo_depth
+    node knows (it may configure other nodes too) get one warning line."""
+    from_file = read_params_file(args.params) if getattr(args, "params", None) else {}
     assignments = parse_assignments(args.assignments)
+    stereo_names = {*field_names(), *COMPAT_ALIASES}
     for name in assignments:
-        if name not in stereo_names | output_names:
+        if name not in stereo_names | set(option_names(OutputOptions)):
             reason = unknown_parameters_line([name]) or f"'{name}' is a live node's option, not used offline"
             msg = f"--set: {reason}"
             raise ParameterError(msg)
     values = {**from_file, **assignments}
-    stereo = {k: v for k, v in values.items() if k in stereo_names}
-    return stereo, {k: v for k, v in values.items() if k in output_names}
+    stereo = make_params(args.profile, {k: v for k, v in values.items() if k in stereo_names})
+    line = unknown_parameters_line(from_file)
+    if line is not None:
+        print(f"WARNING: --params {args.params}: {line}", file=sys.stderr)
+    flags = {name: getattr(args, name, None) for name in SYNC_OPTIONS}
+    sync = node_options({**from_file, **{k: v for k, v in flags.items() if v is not None}})
+    return Settings(stereo, sync, output_options(values))
 
 
-def params_from(args: argparse.Namespace) -> StereoParams:
-    """--profile, then the StereoParams keys of --params FILE, then --set (the last one wins)."""
-    return make_params(args.profile, _given(args)[0])
-
-
-def output_options_from(args: argparse.Namespace) -> OutputOptions:
-    """The OutputOptions keys of --params FILE, then --set: outputs built as the nodes build them."""
-    return make_output_options(_given(args)[1])
-
-
-def sync_from(args: argparse.Namespace) -> SyncPolicy:
-    """Command-line flags, else the node parameters in --params FILE, else the node's defaults."""
-    node = file_parameters(args)
-    defaults = SyncPolicy()
-
-    def pick(flag: Any, name: str, default: Any) -> Any:
-        return flag if flag is not None else node.get(name, default)
-
-    tolerance = float(pick(args.approximate_sync_tolerance, "approximate_sync_tolerance_seconds", 0.0))
-    queue_size = int(pick(args.queue_size, "queue_size", defaults.queue_size))
-    if tolerance < 0 or queue_size < 1:
-        msg = f"approximate sync tolerance {tolerance} must be >= 0 and queue size {queue_size} >= 1"
-        raise ParameterError(msg)
-    approximate = bool(pick(args.approximate_sync, "approximate_sync", defaults.approximate))
-    return SyncPolicy.from_node_parameters(approximate, queue_size, tolerance)
-
-
-def options_from(args: argparse.Namespace) -> ProcessOptions:
+def options_from(args: argparse.Namespace, settings: Settings) -> ProcessOptions:
     return ProcessOptions(
         namespace=args.namespace,
         topics=topic_choice(args),
-        sync=sync_from(args),
+        sync=settings.options,
         storage=args.storage,
         compress=args.compress,
         outputs=tuple(args.outputs),
-        output=output_options_from(args),
+        output=settings.output,
         overwrite=args.overwrite,
         png_dir=args.png,
         ply_dir=args.ply,
@@ -185,17 +156,10 @@ def interrupt_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
-def warn_unknown_file_keys(args: argparse.Namespace) -> None:
-    """One line for --params keys no stereo_depth node knows (a typo would otherwise do nothing)."""
-    line = unknown_parameters_line(file_parameters(args))
-    if line is not None:
-        print(f"WARNING: --params {args.params}: {line}", file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
-    params = params_from(args)
-    warn_unknown_file_keys(args)
-    options = options_from(args)
+    settings = settings_from(args)
+    assert settings.stereo is not None
+    params, options = settings.stereo, options_from(args, settings)
     interrupt_on_sigterm()
     if args.out_dir is not None:
         return run_many(args, params, options)

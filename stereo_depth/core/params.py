@@ -8,95 +8,64 @@ values that differ from the dataclass defaults; explicitly given values always o
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
+from stereo_depth.core.option_fields import coerce, coerced, option, option_names, range_problems
 from stereo_depth.errors import ParameterError
 
 SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
 SGBM_COST_MAX = 32767  # OpenCV SGBM's path costs are int16
 CENSUS_BITS = 62  # census_sgm's 7x9 census: the largest Hamming cost of one pixel
 CENSUS_P2_PER_BIT = 32  # census_sgm's P2 limit, in units of the largest matching cost (see census_sgm.cost_shift)
-OUTPUT_SIZES = ("full", "processed")  # downsample_output choices
-
-
-def _spec(description: str, lo: float | None = None, hi: float | None = None, step: float = 0) -> dict[str, Any]:
-    return {"description": description, "min": lo, "max": hi, "step": step}
+MATCHER_NAMES = ("bm", "sgbm", "census_sgm")  # core/matching.py's registry has one entry each
 
 
 @dataclass(frozen=True)
 class StereoParams:
     """Everything that changes what the pipeline computes for a frame; defaults = the `default` profile."""
 
-    matcher: str = field(
-        default="sgbm",
-        metadata=_spec(
-            "Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global), "
-            "census_sgm (our census + 8-path semi-global core with confidence)"
-        ),
+    matcher: str = option(
+        "sgbm",
+        "Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global), "
+        "census_sgm (our census + 8-path semi-global core with confidence)",
+        choices=MATCHER_NAMES,
     )
-    prefilter_size: int = field(default=9, metadata=_spec("BM normalization window size in pixels (odd)", 5, 255, 2))
-    prefilter_cap: int = field(default=31, metadata=_spec("Bound on normalized pixel values", 1, 63, 1))
-    correlation_window_size: int = field(
-        default=5, metadata=_spec("Matching window width in pixels (odd; BM needs >= 5)", 1, 255, 2)
+    prefilter_size: int = option(9, "BM normalization window size in pixels (odd)", 5, 255, 2)
+    prefilter_cap: int = option(31, "Bound on normalized pixel values", 1, 63, 1)
+    correlation_window_size: int = option(5, "Matching window width in pixels (odd; BM needs >= 5)", 1, 255, 2)
+    min_disparity: int = option(0, "Disparity to begin search at, pixels", -2048, 2048, 1)
+    disparity_range: int = option(64, "Number of disparities to search, pixels (multiple of 16)", 16, 4096, 16)
+    texture_threshold: int = option(10, "BM: reject windows whose texture response is below this", 0, 10000, 1)
+    uniqueness_ratio: float = option(
+        5.0, "Reject if the best match is not this % better than the next best", 0.0, 100.0
     )
-    min_disparity: int = field(default=0, metadata=_spec("Disparity to begin search at, pixels", -2048, 2048, 1))
-    disparity_range: int = field(
-        default=64, metadata=_spec("Number of disparities to search, pixels (multiple of 16)", 16, 4096, 16)
+    speckle_size: int = option(100, "Remove disparity blobs smaller than this many pixels (0 = off)", 0, 1000, 1)
+    speckle_range: int = option(2, "Largest disparity step inside one blob, pixels", 0, 31, 1)
+    disp12_max_diff: int = option(1, "SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
+    P1: float = option(
+        200.0, "Smoothness penalty for disparity changes of 1 px (sgbm: grey levels, census_sgm: bits)", 0.0, 100000.0
     )
-    texture_threshold: int = field(
-        default=10, metadata=_spec("BM: reject windows whose texture response is below this", 0, 10000, 1)
+    P2: float = option(800.0, "SGBM penalty for larger disparity changes (must exceed P1)", 0.0, 100000.0)
+    sgbm_mode: int = option(2, "SGBM variant: 0 SGBM (5 paths), 1 HH (8 paths), 2 SGBM_3WAY, 3 HH4", 0, 3, 1)
+    confidence_threshold: float = option(
+        0.0, "Invalidate pixels whose match confidence is below this (cores with confidence)", 0.0, 1.0
     )
-    uniqueness_ratio: float = field(
-        default=5.0, metadata=_spec("Reject if the best match is not this % better than the next best", 0.0, 100.0)
+    fill_holes: bool = option(False, "Fill invalid pixels from their neighbours for a dense depth image")
+    hole_fill_radius: int = option(
+        3, "Edge-aware smoothing radius of filled pixels (0 = plain background fill)", 0, 7, 1
     )
-    speckle_size: int = field(
-        default=100, metadata=_spec("Remove disparity blobs smaller than this many pixels (0 = off)", 0, 1000, 1)
-    )
-    speckle_range: int = field(default=2, metadata=_spec("Largest disparity step inside one blob, pixels", 0, 31, 1))
-    disp12_max_diff: int = field(
-        default=1, metadata=_spec("SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
-    )
-    P1: float = field(
-        default=200.0,
-        metadata=_spec(
-            "Smoothness penalty for disparity changes of 1 px (sgbm: grey levels, census_sgm: bits)", 0.0, 100000.0
-        ),
-    )
-    P2: float = field(
-        default=800.0, metadata=_spec("SGBM penalty for larger disparity changes (must exceed P1)", 0.0, 100000.0)
-    )
-    sgbm_mode: int = field(
-        default=2, metadata=_spec("SGBM variant: 0 SGBM (5 paths), 1 HH (8 paths), 2 SGBM_3WAY, 3 HH4", 0, 3, 1)
-    )
-    confidence_threshold: float = field(
-        default=0.0,
-        metadata=_spec("Invalidate pixels whose match confidence is below this (cores with confidence)", 0.0, 1.0),
-    )
-    fill_holes: bool = field(
-        default=False, metadata=_spec("Fill invalid pixels from their neighbours for a dense depth image")
-    )
-    hole_fill_radius: int = field(
-        default=3, metadata=_spec("Edge-aware smoothing radius of filled pixels (0 = plain background fill)", 0, 7, 1)
-    )
-    downsample: int = field(
-        default=1, metadata=_spec("Match at 1/downsample resolution (1, 2 or 4) for slow CPUs", 1, 4, 1)
-    )
-    downsample_output: str = field(
-        default="full",
-        metadata=_spec(
-            "With downsample > 1: full (disparity, depth, points2, image_rect at the input size) or processed "
-            "(at the matched size, focal length and principal point scaled with it: 1/downsample^2 the points)"
-        ),
+    downsample: int = option(1, "Match at 1/downsample resolution (1, 2 or 4) for slow CPUs", 1, 4, 1)
+    downsample_output: str = option(
+        "full",
+        "With downsample > 1: full (disparity, depth, points2, image_rect at the input size) or processed "
+        "(at the matched size, focal length and principal point scaled with it: 1/downsample^2 the points)",
+        choices=("full", "processed"),
     )
 
     def validate(self) -> StereoParams:
         """Refuse values that OpenCV would reject or silently change, with the reason."""
-        from stereo_depth.core.matching import MATCHERS  # the registry lives with the matchers
-
         checks: list[tuple[bool, str]] = [
-            (self.matcher in MATCHERS, f"matcher '{self.matcher}' is unknown; choose one of {sorted(MATCHERS)}"),
             (
                 self.disparity_range > 0 and self.disparity_range % 16 == 0,
                 f"disparity_range {self.disparity_range} must be a positive multiple of 16",
@@ -116,17 +85,9 @@ class StereoParams:
                 f"min_disparity {self.min_disparity} must be >= 0 for census_sgm (use sgbm for negative ones)",
             ),
             (self.downsample in (1, 2, 4), f"downsample {self.downsample} must be 1, 2 or 4"),
-            (
-                self.downsample_output in OUTPUT_SIZES,
-                f"downsample_output '{self.downsample_output}' must be one of {', '.join(OUTPUT_SIZES)}",
-            ),
             (self.sgbm_mode in SGBM_MODES, f"sgbm_mode {self.sgbm_mode} must be one of {sorted(SGBM_MODES)}"),
         ]
-        for f in dataclasses.fields(self):
-            spec = f.metadata
-            value = getattr(self, f.name)
-            if spec.get("min") is not None and not spec["min"] <= value <= spec["max"]:
-                checks.append((False, f"{f.name} {value} is outside [{spec['min']}, {spec['max']}]"))
+        checks += [(False, reason) for reason in range_problems(self)]
         checks += self._cost_limits()  # after the ranges: those reasons come first
         for ok, reason in checks:
             if not ok:
@@ -226,33 +187,7 @@ COMPAT_ALIASES = ("stereo_algorithm", "full_dp")
 
 
 def field_names() -> list[str]:
-    return [f.name for f in dataclasses.fields(StereoParams)]
-
-
-def coerce(name: str, value: Any, kind: Any = None) -> Any:
-    """Convert a value given as text or a looser type (CLI, YAML) to the field's type (`kind`: the
-    type of a field of another dataclass than StereoParams)."""
-    if kind is None:
-        kind = {f.name: f.type for f in dataclasses.fields(StereoParams)}[name]
-    try:
-        if kind in ("bool", bool):
-            if isinstance(value, str):
-                if value.lower() in ("true", "1", "yes", "on"):
-                    return True
-                if value.lower() in ("false", "0", "no", "off"):
-                    return False
-                raise ValueError(value)
-            return bool(value)
-        if kind in ("int", int):
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError(value)
-            return int(value)
-        if kind in ("float", float):
-            return float(value)
-        return str(value)
-    except (TypeError, ValueError) as exc:
-        msg = f"{name}: {value!r} is not a valid {kind}"
-        raise ParameterError(msg) from exc
+    return option_names(StereoParams)
 
 
 def translate_aliases(overrides: dict[str, Any]) -> dict[str, Any]:
@@ -266,7 +201,7 @@ def translate_aliases(overrides: dict[str, Any]) -> dict[str, Any]:
             raise ParameterError(msg)
         out.setdefault("matcher", names[algorithm])
     # full_dp parses like any bool field; true selects the full 8-path variant
-    if "full_dp" in out and coerce("fill_holes", out.pop("full_dp")):
+    if "full_dp" in out and coerce("full_dp", out.pop("full_dp"), bool):
         out.setdefault("sgbm_mode", 1)
     return out
 
@@ -276,13 +211,12 @@ def make_params(profile: str = "default", overrides: dict[str, Any] | None = Non
     if profile not in PROFILES:
         msg = f"profile '{profile}' is unknown; choose one of {sorted(PROFILES)}"
         raise ParameterError(msg)
-    values = dict(PROFILES[profile])
-    for name, value in translate_aliases(overrides or {}).items():
+    given = translate_aliases(overrides or {})
+    for name in given:
         if name not in field_names():
             msg = f"unknown parameter '{name}'; known: {', '.join(field_names())}"
             raise ParameterError(msg)
-        values[name] = coerce(name, value)
-    return StereoParams(**values).validate()
+    return StereoParams(**{**PROFILES[profile], **coerced(StereoParams, given)}).validate()
 
 
 def parse_assignments(items: list[str]) -> dict[str, str]:

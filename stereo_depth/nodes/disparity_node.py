@@ -9,9 +9,10 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.frames import image_outputs
-from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
+from stereo_depth.options import INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
 
 
 class DisparityNode(StereoIONode):
@@ -21,7 +22,7 @@ class DisparityNode(StereoIONode):
         ("right/image_rect", Image),
         ("right/camera_info", CameraInfo),
     )
-    CALIBRATIONS = ((1, 0), (3, 2))
+    CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
     OPTIONS = INPUT_OPTIONS
     WITH_STEREO = True
 
@@ -29,10 +30,10 @@ class DisparityNode(StereoIONode):
         super().__init__("disparity_node")
         self._disparity = self.output(DisparityImage, "disparity")
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert settings.stereo is not None
         start = time.perf_counter()
-        frame = self.read_frame(messages, settings, rectified=True)
+        frame = self.read_frame(StereoSet.paired(stamp_ns, messages), settings, rectified=True)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         result = self.match(frame)

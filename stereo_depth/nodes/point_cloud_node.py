@@ -12,15 +12,15 @@ from typing import Any
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import disparity_to_depth
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError
-from stereo_depth.frames import Geometry, OutputState, geometry_outputs
-from stereo_depth.messages import disparity_from_msg, stamp_to_ns
-from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
+from stereo_depth.frames import Geometry, InputNames, OutputState, geometry_outputs
+from stereo_depth.messages import disparity_from_msg
+from stereo_depth.options import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.sync import StereoSet
 
 
 class PointCloudNode(StereoIONode):
@@ -39,39 +39,35 @@ class PointCloudNode(StereoIONode):
         self._points = self.output(PointCloud2, "points2")
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert self.pipeline is not None
         image_msg, left_info, right_info, disparity_msg = messages
         start = time.perf_counter()
-        image = self.read_image(0, image_msg, settings)
-        camera = self.stereo_camera(1, left_info, 2, right_info)
+        inputs = StereoSet(stamp_ns, image_msg, left_info, None, right_info)  # a disparity, no right image
+        names = InputNames(self.topics[0], self.topics[1], "", self.topics[2])
+        frame = self.read_frame(inputs, settings, rectified=True, names=names)
+        camera = frame.camera
         disparity = self.read_input(3, disparity_from_msg, disparity_msg)
-        self._check_sizes(image.shape[:2], disparity.shape, camera)
+        if disparity.shape != (camera.height, camera.width):
+            msg = (
+                f"{self.topics[3]}: {disparity.shape[1]}x{disparity.shape[0]} but camera_info says "
+                f"{camera.width}x{camera.height}; remap the topics of one camera together"
+            )
+            raise ImageError(msg)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
-        stamp_ns = stamp_to_ns(image_msg.header.stamp)
-        if not self._state.cloud_rate.due(stamp_ns, settings.output.points_max_rate):
+        if not self._state.cloud_rate.due(frame.stamp_ns, settings.output.points_max_rate):
             return stages
         start = time.perf_counter()
         depth = disparity_to_depth(disparity, camera, offset_adjusted=True)
-        geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), image, camera)
+        geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), frame.left, camera)
         output = settings.output
-        cloud = geometry_outputs(RCLPY_TYPES, image_msg.header, geometry, output, ("points2",), self._state)
+        cloud = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, ("points2",), self._state)
         timed(stages, "points", start)
         start = time.perf_counter()
         self._points.publish(cloud["points2"])
         timed(stages, "publish", start)
         return stages
-
-    def _check_sizes(self, image: tuple[int, ...], disparity: tuple[int, ...], camera: StereoCamera) -> None:
-        expected = (camera.height, camera.width)
-        for index, shape in ((0, image), (3, disparity)):
-            if tuple(shape) != expected:
-                msg = (
-                    f"{self.topics[index]}: {shape[1]}x{shape[0]} but camera_info says "
-                    f"{camera.width}x{camera.height}; remap the topics of one camera together"
-                )
-                raise ImageError(msg)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -17,7 +17,7 @@ from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.camera import build_rectification_maps, check_camera_info, needs_rectification
 from stereo_depth.errors import CalibrationError
 from stereo_depth.messages import array_to_image, camera_info_from_msg
-from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
+from stereo_depth.options import INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -32,7 +32,7 @@ class RectifyNode(StereoIONode):
         self._maps: tuple[Calibration, tuple[np.ndarray, np.ndarray] | None] | None = None
         self._rect = self.output(Image, "image_rect")
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         image_msg, info_msg = messages
         start = time.perf_counter()
         image = self.read_image(0, image_msg, settings)

@@ -26,20 +26,11 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
-from stereo_depth.frames import (
-    GEOMETRY_OUTPUTS,
-    IMAGE_OUTPUTS,
-    OutputOptions,
-    OutputState,
-    StereoFrame,
-    geometry_outputs,
-    image_outputs,
-    result_geometry,
-)
-from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
+from stereo_depth.frames import OUTPUTS, Geometry, OutputState, frame_outputs
+from stereo_depth.options import CAMERA_OPTIONS, CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.settings import CAMERA_OPTIONS
+from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
 
 OUTPUT_TYPES = {
     "left/image_rect": Image,
@@ -69,7 +60,7 @@ class StereoNode(StereoIONode):
         ("right/image_raw", Image),
         ("right/camera_info", CameraInfo),
     )
-    CALIBRATIONS = ((1, 0), (3, 2))
+    CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
     IMAGE_INPUTS = (0, 2)
     CAMERA_INFO_FILES = ((1, "left_camera_info_url"), (3, "right_camera_info_url"))
     OPTIONS = (
@@ -98,49 +89,47 @@ class StereoNode(StereoIONode):
         self._check_idle = threading.Event()
         self._check_idle.set()
         self._frames = 0
-        self._geometry = LatestWorker(self._geometry_stage, self.diagnostics.add_dropped_cloud)
+        self._cloud_stage = LatestWorker(self.guarded, self.diagnostics.add_dropped_cloud)  # runs frames' cloud stage
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
+        """First stage: decode and match (several frames at once with matching_threads); then, in input
+        order, the image outputs, and the cloud stage handed to the second thread (`frame_outputs`)."""
         assert self.pipeline is not None and settings.stereo is not None
         options = settings.options
         start = time.perf_counter()
-        frame = self.read_frame(messages, settings, rectified=False)
+        frame = self.read_frame(StereoSet.paired(stamp_ns, messages), settings, rectified=False)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         result = self.match(frame)
-        with self.outputs_in_order() as newest:
-            if not newest:
-                return None
-            wanted = self._wanted(IMAGE_OUTPUTS, options)
-            self._publish(image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, wanted), stages)
+
+        def publish_images(messages: dict[str, Any]) -> None:
+            self._publish(messages, stages)
             self._maybe_check_calibration(frame.stamp_ns, result, options)
-            wanted = self._state.cloud_rate.wanted(
-                self._wanted(GEOMETRY_OUTPUTS, options), frame.stamp_ns, settings.output
-            )
-            if not wanted:
-                return {**result.timings_ms, **stages}
-            self._geometry.submit((frame, result, stages, settings.output, wanted))
+
+        def publish_cloud(messages: dict[str, Any], geometry: Geometry | None) -> None:
+            del geometry  # the messages are all the node needs
+            self._publish(messages, stages)
+            self.finish_frame(frame.stamp_ns, {**result.timings_ms, **stages})
+
+        with self.outputs_in_order() as newest:
+            if newest:
+                frame_outputs(
+                    RCLPY_TYPES,
+                    self.pipeline,
+                    frame,
+                    result,
+                    settings.stereo,
+                    settings.output,
+                    self._wanted(OUTPUTS, options),
+                    self._state,
+                    publish_images,
+                    publish_cloud,
+                    run_cloud_stage=self._cloud_stage.submit,
+                )
         return None
 
     def frames_at_once(self, settings: Settings) -> int:
         return settings.options.matching_threads
-
-    def _geometry_stage(
-        self, job: tuple[StereoFrame, StereoResult, dict[str, float], OutputOptions, frozenset[str]]
-    ) -> None:
-        """Second stage: depth and points2 of a published disparity, then the frame is done."""
-        frame, result, stages, output, wanted = job
-
-        def work() -> None:
-            assert self.pipeline is not None
-            geometry = result_geometry(self.pipeline, frame, result)  # times "depth"
-            start = time.perf_counter()
-            messages = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, wanted, self._state)
-            timed(stages, "points", start)  # the depth image and points2 messages, as `process` times it
-            self._publish(messages, stages)
-            self.finish_frame(frame.stamp_ns, {**result.timings_ms, **stages})
-
-        self.guarded(work)
 
     def _maybe_check_calibration(self, stamp_ns: int, result: StereoResult, options: NodeOptions) -> None:
         self._frames += 1
@@ -160,7 +149,7 @@ class StereoNode(StereoIONode):
 
     def stop_workers(self) -> None:
         super().stop_workers()  # the first stage: nothing new reaches the second
-        self._geometry.stop()
+        self._cloud_stage.stop()
         self._checker.shutdown(wait=True, cancel_futures=True)
 
     def _wanted(self, names: tuple[str, ...], options: NodeOptions) -> frozenset[str]:

@@ -35,15 +35,16 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
-from stereo_depth.frames import StereoFrame, decode_frame, decode_image, frame_camera, match_frame, named
+from stereo_depth.frames import InputNames, StereoFrame, decode_frame, decode_image, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
+from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
-from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
+from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos
 from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.sync import Synchronizer
+from stereo_depth.sync import StereoSet, Synchronizer
 
 T = TypeVar("T")
 QOS_RECHECK_S = 0.25  # reaction to a publisher's matched / incompatible-QoS event
@@ -172,9 +173,10 @@ class StereoIONode(Node):
 
     # ------------------------------------------------------------ to implement / use in subclasses
 
-    def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
-        """Turn one matched set into outputs; return per-stage times (ms) for diagnostics, or None when
-        the rest of the frame was handed to another thread, which calls `finish_frame` when done."""
+    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
+        """Turn one matched set (its stamp, its messages in INPUTS order) into outputs; return per-stage
+        times (ms) for diagnostics, or None when the rest of the frame was handed to another thread,
+        which calls `finish_frame` when done."""
         raise NotImplementedError
 
     def frames_at_once(self, settings: Settings) -> int:
@@ -209,27 +211,21 @@ class StereoIONode(Node):
     def read_image(self, index: int, msg: Any, settings: Settings) -> Any:
         return named(self.topics[index], decode_image, msg, settings.output.max_image_pixels)
 
-    def stereo_camera(self, left_index: int, left_msg: Any, right_index: int, right_msg: Any) -> StereoCamera:
-        """The cached StereoCamera; calibration errors name both camera_info topics."""
+    def read_frame(
+        self, inputs: StereoSet, settings: Settings, *, rectified: bool, names: InputNames | None = None
+    ) -> StereoFrame:
+        """`decode_frame`, errors naming the topics (`names`: where INPUTS are not a stereo set's four)."""
         assert self.pipeline is not None
+        names = names or InputNames(*self.topics)
         loaded = self.pipeline.calibrations_built
-        names = (self.topics[left_index], self.topics[right_index])
-        camera = frame_camera(self.pipeline, left_msg, right_msg, names)
-        self._note_calibration(loaded, camera, names)
-        return camera
-
-    def read_frame(self, messages: tuple[Any, ...], settings: Settings, *, rectified: bool) -> StereoFrame:
-        """`decode_frame` of (left image, left info, right image, right info), errors naming the topics."""
-        assert self.pipeline is not None
-        loaded = self.pipeline.calibrations_built
-        frame = decode_frame(messages, self.pipeline, settings.output, rectified=rectified, names=self.topics)
-        self._note_calibration(loaded, frame.camera, (self.topics[1], self.topics[3]))
+        frame = decode_frame(inputs, self.pipeline, settings.output, rectified=rectified, names=names)
+        self._note_calibration(loaded, frame.camera, (names.left_info, names.right_info))
         return frame
 
     def match(self, frame: StereoFrame) -> StereoResult:
         """`match_frame`, with both image topics named in any error it raises."""
         assert self.pipeline is not None
-        return match_frame(self.pipeline, frame, self.topics)
+        return match_frame(self.pipeline, frame, InputNames(*self.topics))
 
     def _note_calibration(self, loaded: int, camera: StereoCamera, names: tuple[str, str]) -> None:
         """Diagnostics and one log line when the pipeline built a new calibration for this frame."""
@@ -349,7 +345,7 @@ class StereoIONode(Node):
             settings = self.parameters.settings
             if self.pipeline is not None and settings.stereo is not None:
                 self._use_params(self.pipeline, settings.stereo)
-            stage_ms = self.process(messages, settings)
+            stage_ms = self.process(stamp_ns, messages, settings)
             if stage_ms is not None:
                 self.finish_frame(stamp_ns, stage_ms)
 
