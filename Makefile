@@ -55,8 +55,9 @@ test: venv
 # The oldest versions requirements.txt claims (OpenCV 4.6, numpy 1.26, numba, rosbags, mcap at their lower
 # bounds; requirements-min.lock), on the core, bag and node tests: what an Ubuntu 24.04 / rosdep user has.
 MIN_TESTS := $(filter-out test/test_package.py test/test_fleet.py test/test_readme_claims.py,$(wildcard test/test_*.py))
+# Its numba keeps a cache of its own: one beside the sources is rewritten by whichever numba compiled last.
 test-min: $(MIN_VENV)/.installed
-	$(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
+	NUMBA_CACHE_DIR=$(MIN_VENV)/numba-cache $(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
 
 demo: venv
 	$(VENV)/bin/stereo-depth demo
