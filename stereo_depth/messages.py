@@ -265,6 +265,104 @@ def array_to_compressed(types: MessageTypes, header: Any, pixels: np.ndarray, co
     )
 
 
+# ---------------------------------------------------------------- compressedDepth (image_transport)
+
+COMPRESSED_DEPTH_FORMATS = ("png", "rvl")
+_INV_DEPTH = 0  # compressed_depth_image_transport's compressionFormat enum: UNDEFINED = -1, INV_DEPTH
+_CONFIG_HEADER = np.dtype([("format", "<i4"), ("depth_param", "<f4", (2,))])  # its ConfigHeader, 12 bytes
+
+
+def depth_to_compressed_depth(
+    types: MessageTypes,
+    header: Any,
+    depth: np.ndarray,
+    encoding: str,
+    *,
+    codec: str = "png",
+    depth_max: float = 10.0,
+    depth_quantization: float = 100.0,
+    png_level: int = 3,
+) -> Any:
+    """A depth image as image_transport's `compressedDepth` publisher writes it (codec.cpp of
+    compressed_depth_image_transport, Jazzy), so its subscriber and every consumer of the transport
+    decode it: format "<encoding>; compressedDepth <png|rvl>", then a 12-byte ConfigHeader (int32
+    compressionFormat = INV_DEPTH, float32 depthParam[2]), then the PNG or RVL stream.
+
+    32FC1 metres become 16-bit inverse depth q = A / z + B (A = z0 (z0 + 1), B = 1 - A / depth_max,
+    z0 = depth_quantization, float32 as the plugin computes it; truncated; 0 for NaN and z >= depth_max;
+    saturated at 65535 where the plugin's cast would wrap), and A, B go in depthParam. 16UC1 millimetres
+    are kept, 0 beyond depth_max (as the plugin; depthParam is 0 here, the plugin leaves it unset; a
+    depth_max over 65.535 m keeps every value, where the plugin's cast would wrap).
+    RVL: uint32 width, uint32 height, then the RVL words.
+    """
+    if encoding == "32FC1":
+        a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
+        b = np.float32(1.0) - a / np.float32(depth_max)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            near = depth < np.float32(depth_max)  # False for NaN
+            inverse = np.where(near, a / depth + b, np.float32(0.0))
+        pixels = np.minimum(inverse, np.float32(65535.0)).astype(np.uint16)
+        params = (a, b)
+    else:
+        pixels = depth.copy()
+        pixels[pixels > min(int(depth_max * 1000.0), 65535)] = 0
+        params = (np.float32(0.0), np.float32(0.0))
+    config = np.array([(_INV_DEPTH, params)], dtype=_CONFIG_HEADER)
+    if codec == "rvl":
+        height, width = pixels.shape
+        stream = np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_encode(pixels)])
+    else:
+        ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, png_level])
+        if not ok:
+            msg = f"cannot encode a {pixels.shape[1]}x{pixels.shape[0]} depth image as PNG"
+            raise ImageError(msg)
+        stream = png.reshape(-1)
+    data = np.concatenate([config.view(np.uint8), stream])
+    return types.CompressedImage(header=header, format=f"{encoding}; compressedDepth {codec}", data=_bytes(types, data))
+
+
+def rvl_encode(pixels: np.ndarray) -> np.ndarray:
+    """RVL (Wilson 2017) as compressed_depth_image_transport's RvlCodec::CompressRVL writes it, vectorised:
+    per run, the count of zeros, the count of nonzeros, then each nonzero's zigzag delta to the previous
+    nonzero; each value in 3-bit groups, low group first, bit 3 set when more follow; eight 4-bit
+    groups per little-endian int32, the first in the top bits, the last word zero-filled."""
+    flat = pixels.reshape(-1).astype(np.int64)
+    nonzero = flat != 0
+    edges = np.flatnonzero(np.diff(nonzero.astype(np.int8))) + 1  # where a zero run or a nonzero run starts
+    lengths = np.diff(np.concatenate([[0], edges, [flat.size]]))
+    if nonzero[0]:  # every run pair starts with a zero run, here an empty one
+        lengths = np.concatenate([[0], lengths])
+    if len(lengths) % 2:  # the last zero run has an empty nonzero run after it
+        lengths = np.concatenate([lengths, [0]])
+    zeros, nonzeros = lengths[0::2], lengths[1::2]
+    values_nz = flat[nonzero]
+    deltas = np.diff(np.concatenate([[0], values_nz]))
+    zigzag = (deltas << 1) ^ (deltas >> 63)
+    # the value stream: zeros_i, nonzeros_i, then nonzeros_i deltas, run after run
+    counts = 2 + nonzeros
+    stream = np.empty(int(counts.sum()), np.int64)
+    heads = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    stream[heads] = zeros
+    stream[heads + 1] = nonzeros
+    is_delta = np.ones(stream.size, bool)
+    is_delta[heads] = is_delta[heads + 1] = False
+    stream[is_delta] = zigzag
+    return _vle_words(stream)
+
+
+def _vle_words(values: np.ndarray) -> np.ndarray:
+    bits = np.maximum(np.floor(np.log2(np.maximum(values, 1))).astype(np.int64) + 1, 1)
+    groups = (bits + 2) // 3
+    first = np.concatenate([[0], np.cumsum(groups)[:-1]])
+    index = np.arange(int(groups.sum())) - np.repeat(first, groups)
+    repeated = np.repeat(values, groups)
+    nibbles = (repeated >> (3 * index)) & 7
+    nibbles |= np.where(index < np.repeat(groups, groups) - 1, 8, 0)
+    nibbles = np.concatenate([nibbles, np.zeros(-nibbles.size % 8, np.int64)]).reshape(-1, 8)
+    words = (nibbles << np.arange(28, -1, -4)).sum(axis=1).astype(np.uint32)
+    return words.astype("<u4").view(np.uint8)
+
+
 def encoding_for(array_: np.ndarray) -> str:
     if array_.dtype == np.float32 and array_.ndim == 2:
         return "32FC1"

@@ -48,6 +48,13 @@ class NodeOptions:
     publish_disparity: bool = field(default=True, metadata=_spec("Publish disparity (stereo_msgs/DisparityImage)"))
     publish_depth: bool = field(default=True, metadata=_spec("Publish depth (32FC1, metres, NaN invalid)"))
     publish_points: bool = field(default=True, metadata=_spec("Publish points2 (sensor_msgs/PointCloud2)"))
+    publish_points_clearing: bool = field(
+        default=False,
+        metadata=_spec(
+            "Publish points2_clearing: a point along the ray of each pixel matched beyond max_depth or at the "
+            "smallest disparity, for costmaps to clear free space with (stereo_node)"
+        ),
+    )
     publish_confidence: bool = field(
         default=True, metadata=_spec("Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
     )

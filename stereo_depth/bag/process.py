@@ -25,8 +25,8 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import (
+    DEFAULT_OUTPUTS,
     GEOMETRY_OUTPUTS,
-    OUTPUTS,
     Geometry,
     OutputOptions,
     OutputState,
@@ -47,7 +47,7 @@ class ProcessOptions:
     sync: SyncPolicy = field(default_factory=SyncPolicy)
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
-    outputs: tuple[str, ...] = OUTPUTS  # what stereo_node publishes by default (colour, confidence: when there)
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # stereo_node's default outputs (colour, confidence: when there)
     output: OutputOptions = field(default_factory=OutputOptions)  # how outputs are built, as the nodes'
     overwrite: bool = False
     png_dir: Path | None = None

@@ -17,7 +17,7 @@ from stereo_depth.commands.common import add_param_options, add_topic_options, t
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
-from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
+from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS, OutputOptions, make_output_options, output_option_names
 from stereo_depth.settings import unknown_parameters_line
 
 
@@ -73,11 +73,11 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
         "--outputs",
         nargs="+",
         choices=OUTPUTS,
-        default=list(OUTPUTS),
+        default=list(DEFAULT_OUTPUTS),
         metavar="NAME",
         help=(
-            f"topics to write (default all: {' '.join(OUTPUTS)}; colour and confidence when the input and "
-            "matcher give them); a VGA points2 is 10 MB a frame"
+            f"topics to write (default: {' '.join(DEFAULT_OUTPUTS)}; colour and confidence when the input and "
+            "matcher give them; also depth/compressedDepth, points2_clearing); a VGA points2 is 10 MB a frame"
         ),
     )
     parser.add_argument(
