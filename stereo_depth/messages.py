@@ -21,6 +21,7 @@ import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points
+from stereo_depth.core.rvl import rvl_compress
 from stereo_depth.errors import ImageError
 
 # camera encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
@@ -310,7 +311,7 @@ def depth_to_compressed_depth(
     config = np.array([(_INV_DEPTH, params)], dtype=_CONFIG_HEADER)
     if codec == "rvl":
         height, width = pixels.shape
-        stream = np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_encode(pixels)])
+        stream = np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_compress(pixels)])
     else:
         ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, png_level])
         if not ok:
@@ -319,48 +320,6 @@ def depth_to_compressed_depth(
         stream = png.reshape(-1)
     data = np.concatenate([config.view(np.uint8), stream])
     return types.CompressedImage(header=header, format=f"{encoding}; compressedDepth {codec}", data=_bytes(types, data))
-
-
-def rvl_encode(pixels: np.ndarray) -> np.ndarray:
-    """RVL (Wilson 2017) as compressed_depth_image_transport's RvlCodec::CompressRVL writes it, vectorised:
-    per run, the count of zeros, the count of nonzeros, then each nonzero's zigzag delta to the previous
-    nonzero; each value in 3-bit groups, low group first, bit 3 set when more follow; eight 4-bit
-    groups per little-endian int32, the first in the top bits, the last word zero-filled."""
-    flat = pixels.reshape(-1).astype(np.int64)
-    nonzero = flat != 0
-    edges = np.flatnonzero(np.diff(nonzero.astype(np.int8))) + 1  # where a zero run or a nonzero run starts
-    lengths = np.diff(np.concatenate([[0], edges, [flat.size]]))
-    if nonzero[0]:  # every run pair starts with a zero run, here an empty one
-        lengths = np.concatenate([[0], lengths])
-    if len(lengths) % 2:  # the last zero run has an empty nonzero run after it
-        lengths = np.concatenate([lengths, [0]])
-    zeros, nonzeros = lengths[0::2], lengths[1::2]
-    values_nz = flat[nonzero]
-    deltas = np.diff(np.concatenate([[0], values_nz]))
-    zigzag = (deltas << 1) ^ (deltas >> 63)
-    # the value stream: zeros_i, nonzeros_i, then nonzeros_i deltas, run after run
-    counts = 2 + nonzeros
-    stream = np.empty(int(counts.sum()), np.int64)
-    heads = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    stream[heads] = zeros
-    stream[heads + 1] = nonzeros
-    is_delta = np.ones(stream.size, bool)
-    is_delta[heads] = is_delta[heads + 1] = False
-    stream[is_delta] = zigzag
-    return _vle_words(stream)
-
-
-def _vle_words(values: np.ndarray) -> np.ndarray:
-    bits = np.maximum(np.floor(np.log2(np.maximum(values, 1))).astype(np.int64) + 1, 1)
-    groups = (bits + 2) // 3
-    first = np.concatenate([[0], np.cumsum(groups)[:-1]])
-    index = np.arange(int(groups.sum())) - np.repeat(first, groups)
-    repeated = np.repeat(values, groups)
-    nibbles = (repeated >> (3 * index)) & 7
-    nibbles |= np.where(index < np.repeat(groups, groups) - 1, 8, 0)
-    nibbles = np.concatenate([nibbles, np.zeros(-nibbles.size % 8, np.int64)]).reshape(-1, 8)
-    words = (nibbles << np.arange(28, -1, -4)).sum(axis=1).astype(np.uint32)
-    return words.astype("<u4").view(np.uint8)
 
 
 def encoding_for(array_: np.ndarray) -> str:
