@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
@@ -27,6 +28,7 @@ from test_nodes import Pair, StereoInput, euroc_pair
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
+from stereo_depth.core.rvl import rvl_compress
 from stereo_depth.messages import cloud_to_arrays, disparity_from_msg, image_to_array
 
 NS = "/clear"
@@ -107,6 +109,15 @@ def assert_decodes_to_depth(compressed: Any, depth_msg: Any, depth_max: float = 
     z, back = depth[kept].astype(np.float64), decoded[kept].astype(np.float64)
     assert np.all(back >= z * (1 - 1e-6))
     assert np.all(1 / z - 1 / back < 1 / a + 1e-6 / z)
+
+
+def test_rvl_words_are_the_documented_groups_in_order() -> None:
+    # values: 2 zeros, 2 nonzeros, zigzag(5 - 0) = 10, zigzag(7 - 5) = 4, 1 zero, 0 nonzeros;
+    # groups: 2 | 2 | 10 = 0b1_010 -> 0xA (2, more follow), 0x1 | 4 | 1 | 0; the word filled from the top
+    # and zero-filled: 0x22A14100, stored little-endian
+    assert rvl_compress(np.array([[0, 0, 5, 7, 0]], np.uint16)).tobytes() == bytes.fromhex("0041a122")
+    ramp = np.arange(1, 41, dtype=np.uint16).reshape(5, 8)  # no zero run first: an empty one is written
+    np.testing.assert_array_equal(rvl_decode(rvl_compress(ramp).tobytes(), ramp.size), ramp.ravel())
 
 
 # ---------------------------------------------------------------- live
@@ -233,3 +244,43 @@ def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -
         at = np.searchsorted(pixels, beyond)
         np.testing.assert_allclose(z[at], np.minimum(full.ravel()[beyond], 7.0), atol=5e-4)  # depth: mm here
         assert np.nanmax(cloud_to_arrays(got["points2"][index])[0][:, :, 2]) <= 5.0
+
+
+def test_compressed_depth_is_encoded_only_while_someone_subscribes(
+    ros: RosHarness, ros_env: dict[str, str], euroc: Pair, tmp_path: Path
+) -> None:
+    node = NodeProcess("stereo_node", "/quiet", ros_env, tmp_path)
+    with ros.running([node]):
+        depth = ros.collector(Image, "/quiet/depth")
+        diagnostics = ros.collector(DiagnosticArray, "/quiet/diagnostics")
+        for collector in (depth, diagnostics):
+            wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
+        inputs = StereoInput(ros, "/quiet")
+        inputs.wait_matched()
+
+        def stages_once_reported(stage: str) -> set[str]:
+            """The stage keys of the first diagnostics report (from now on) that times `stage`."""
+            seen = len(diagnostics.messages)
+
+            def reported() -> set[str] | None:
+                for array in diagnostics.messages[seen:]:
+                    keys = {kv.key for kv in array.status[0].values}
+                    if stage in keys:
+                        return keys
+                return None
+
+            keys: set[str] = wait_until(reported, f"a diagnostics report with {stage}")
+            return keys
+
+        stamp = next(_stamps)
+        inputs.publish(euroc, stamp)
+        depth.wait_stamp(stamp)
+        stages = stages_once_reported("publish depth time (ms)")
+        assert "publish depth/compressedDepth time (ms)" not in stages  # nobody listens: never built
+
+        compressed = ros.collector(CompressedImage, "/quiet/depth/compressedDepth")
+        wait_until(lambda: compressed.subscription.get_publisher_count() >= 1, "compressedDepth matched")
+        stamp = next(_stamps)
+        inputs.publish(euroc, stamp)
+        assert_decodes_to_depth(compressed.wait_stamp(stamp), depth.wait_stamp(stamp))
+        stages_once_reported("publish depth/compressedDepth time (ms)")
