@@ -8,7 +8,8 @@ option for option:
   checked and every error naming the input it is about;
 - `match_frame`, then `frame_outputs`: the two stages in order, the node's and `process`'s:
 - `image_outputs`: what matching gives (left/image_rect(_color), disparity, confidence);
-- `geometry_outputs`: what depth gives (depth, points2), one cloud builder for all.
+- `geometry_outputs`: what depth gives (depth, its compressedDepth, points2, points2_clearing), one
+  cloud builder for all.
 
 ROS-free: messages of either flavour (rclpy or rosbags) go in, messages of the caller's `MessageTypes`
 come out (see messages.py).
@@ -41,6 +42,7 @@ from stereo_depth.messages import (
     camera_info_to_msg,
     compressed_to_pipeline,
     depth_to_cloud,
+    depth_to_compressed_depth,
     disparity_to_msg,
     image_to_pipeline,
     stamp_to_ns,
@@ -52,8 +54,11 @@ T = TypeVar("T")
 
 # Output names, relative to the node's namespace (the topics stereo_node publishes).
 IMAGE_OUTPUTS = ("left/image_rect", "left/image_rect_color", "disparity", "confidence")
-GEOMETRY_OUTPUTS = ("depth", "depth/camera_info", "points2")
+GEOMETRY_OUTPUTS = ("depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing")
 OUTPUTS = (*IMAGE_OUTPUTS, *GEOMETRY_OUTPUTS)
+# what stereo_node publishes with its defaults and `process` writes unless told: not the two for navigation
+DEFAULT_OUTPUTS = tuple(name for name in OUTPUTS if name not in ("depth/compressedDepth", "points2_clearing"))
+CLOUDS = frozenset({"points2", "points2_clearing"})  # what points_max_rate thins
 
 MM_PER_M = 1000.0
 UINT16_MAX = 65535
@@ -267,9 +272,9 @@ class CloudRate:
         return True
 
     def wanted(self, wanted: Collection[str], stamp_ns: int, options: OutputOptions) -> frozenset[str]:
-        """`wanted` without points2 when this frame's cloud is not due."""
-        if "points2" in wanted and not self.due(stamp_ns, options.points_max_rate):
-            return frozenset(wanted) - {"points2"}
+        """`wanted` without the clouds when this frame's clouds are not due."""
+        if CLOUDS & set(wanted) and not self.due(stamp_ns, options.points_max_rate):
+            return frozenset(wanted) - CLOUDS
         return frozenset(wanted)
 
 
@@ -280,6 +285,7 @@ class OutputState:
     def __init__(self) -> None:
         self.masks = RectifiedMasks()
         self.cloud_buffer = CloudBuffer()
+        self.clearing_buffer = CloudBuffer()  # points2_clearing's own: points2 may still hold the other
         self.cloud_rate = CloudRate()
 
 
@@ -291,6 +297,7 @@ class Geometry(NamedTuple):
     rays: Rays
     image: np.ndarray  # rectified left, BGR or grey: the cloud's colour
     raw_camera: StereoCamera  # the input calibration, at the input size (the mask is drawn in its raw image)
+    at_min_disparity: np.ndarray | None = None  # matched at the smallest disparity searched (points2_clearing)
 
 
 def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: StereoResult) -> Geometry:
@@ -299,7 +306,31 @@ def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: Stereo
     pipeline.add_geometry(result, want_points=False)
     assert result.depth is not None
     image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-    return Geometry(result.depth, result.camera, pipeline.rays_for(result.camera), image, frame.camera)
+    params = pipeline.params
+    step = 1 if params.downsample_output == "processed" else params.downsample  # one matcher step, output px
+    with np.errstate(invalid="ignore"):  # NaN: not matched
+        saturated = result.disparity < np.float32(output_params(params).min_disparity + step)
+    rays = pipeline.rays_for(result.camera)
+    return Geometry(result.depth, result.camera, rays, image, frame.camera, saturated)
+
+
+def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:
+    """The depth of points2_clearing (NaN elsewhere): pixels matched beyond max_depth or at the smallest
+    disparity searched (as far as the matcher sees, or farther: their depth may be infinite), each at
+    its depth clamped to clearing_max_depth. Such pixels never reach depth or points2 when beyond
+    max_depth; the mask and min_depth still hold them back. Call before `limit_depth`."""
+    depth = geometry.depth
+    with np.errstate(invalid="ignore"):
+        far = depth > np.float32(options.max_depth) if options.max_depth > 0 else np.zeros(depth.shape, bool)
+        if geometry.at_min_disparity is not None:
+            far |= geometry.at_min_disparity
+        if options.min_depth > 0:
+            far &= ~(depth < np.float32(options.min_depth))
+    if options.mask_image:
+        far &= masks.get(options.mask_image, geometry.raw_camera, depth.shape)
+    clearing = np.full(depth.shape, np.nan, np.float32)
+    clearing[far] = np.fmin(depth[far], np.float32(options.clearing_max_depth))  # fmin: infinite (NaN) -> the limit
+    return clearing
 
 
 def limit_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> None:
@@ -315,14 +346,14 @@ def limit_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMask
         depth[~masks.get(options.mask_image, geometry.raw_camera, depth.shape)] = np.nan
 
 
-def depth_image(types: MessageTypes, header: Any, depth: np.ndarray, encoding: str) -> Any:
+def depth_pixels(depth: np.ndarray, encoding: str) -> np.ndarray:
     """32FC1 metres (NaN invalid) or REP 118's 16UC1 millimetres (0 invalid; beyond 65.535 m too)."""
     if encoding == "32FC1":
-        return array_to_image(types, header, depth, "32FC1")
+        return depth
     with np.errstate(invalid="ignore"):
         mm = np.rint(depth.astype(np.float64) * MM_PER_M)
         mm[~(mm <= UINT16_MAX)] = 0  # NaN and unrepresentable depths
-    return array_to_image(types, header, mm.astype(np.uint16), "16UC1")
+    return mm.astype(np.uint16)
 
 
 def depth_camera_info(types: MessageTypes, header: Any, camera: StereoCamera) -> Any:
@@ -346,10 +377,24 @@ def geometry_outputs(
     `state`: the caller's own for this stream; its cloud buffer is reused frame to frame, so hand the
     cloud on (publish, write) before the next call.
     """
+    clearing = clearing_depth(geometry, options, state.masks) if "points2_clearing" in wanted else None
     limit_depth(geometry, options, state.masks)
     messages: dict[str, Any] = {}
+    if {"depth", "depth/compressedDepth"} & set(wanted):
+        pixels = depth_pixels(geometry.depth, options.depth_encoding)
     if "depth" in wanted:
-        messages["depth"] = depth_image(types, header, geometry.depth, options.depth_encoding)
+        messages["depth"] = array_to_image(types, header, pixels, options.depth_encoding)
+    if "depth/compressedDepth" in wanted:
+        messages["depth/compressedDepth"] = depth_to_compressed_depth(
+            types,
+            header,
+            pixels,
+            options.depth_encoding,
+            codec=options.compressed_depth_format,
+            depth_max=options.compressed_depth_max_depth,
+            depth_quantization=options.compressed_depth_quantization,
+            png_level=options.compressed_depth_png_level,
+        )
     if "depth/camera_info" in wanted:
         messages["depth/camera_info"] = depth_camera_info(types, header, geometry.camera)
     if "points2" in wanted:
@@ -364,6 +409,16 @@ def geometry_outputs(
             buffer=state.cloud_buffer,
             organized=options.organized_cloud,
             voxel_size=options.cloud_voxel_size,
+        )
+    if clearing is not None:  # the points only, no colour: a costmap traces rays to them
+        messages["points2_clearing"] = depth_to_cloud(
+            types,
+            header,
+            clearing,
+            geometry.rays,
+            avoid_padding=options.avoid_point_cloud_padding,
+            buffer=state.clearing_buffer,
+            organized=False,
         )
     return messages
 

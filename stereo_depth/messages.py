@@ -21,6 +21,7 @@ import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.geometry import Rays, depth_to_points
+from stereo_depth.core.rvl import rvl_compress
 from stereo_depth.errors import ImageError
 
 # camera encoding -> (dtype, channels, conversion to the pipeline's BGR / mono, or None if used as is)
@@ -263,6 +264,62 @@ def array_to_compressed(types: MessageTypes, header: Any, pixels: np.ndarray, co
     return types.CompressedImage(
         header=header, format=f"{encoding}; {codec} compressed {encoding}", data=_bytes(types, data)
     )
+
+
+# ---------------------------------------------------------------- compressedDepth (image_transport)
+
+COMPRESSED_DEPTH_FORMATS = ("png", "rvl")
+_INV_DEPTH = 0  # compressed_depth_image_transport's compressionFormat enum: UNDEFINED = -1, INV_DEPTH
+_CONFIG_HEADER = np.dtype([("format", "<i4"), ("depth_param", "<f4", (2,))])  # its ConfigHeader, 12 bytes
+
+
+def depth_to_compressed_depth(
+    types: MessageTypes,
+    header: Any,
+    depth: np.ndarray,
+    encoding: str,
+    *,
+    codec: str = "png",
+    depth_max: float = 10.0,
+    depth_quantization: float = 100.0,
+    png_level: int = 3,
+) -> Any:
+    """A depth image as image_transport's `compressedDepth` publisher writes it (codec.cpp of
+    compressed_depth_image_transport, Jazzy), so its subscriber and every consumer of the transport
+    decode it: format "<encoding>; compressedDepth <png|rvl>", then a 12-byte ConfigHeader (int32
+    compressionFormat = INV_DEPTH, float32 depthParam[2]), then the PNG or RVL stream.
+
+    32FC1 metres become 16-bit inverse depth q = A / z + B (A = z0 (z0 + 1), B = 1 - A / depth_max,
+    z0 = depth_quantization, float32 as the plugin computes it; truncated; 0 for NaN and z >= depth_max;
+    saturated at 65535 where the plugin's cast would wrap), and A, B go in depthParam. 16UC1 millimetres
+    are kept, 0 beyond depth_max (as the plugin; depthParam is 0 here, the plugin leaves it unset; a
+    depth_max over 65.535 m keeps every value, where the plugin's cast would wrap).
+    RVL: uint32 width, uint32 height, then the RVL words.
+    """
+    if encoding == "32FC1":
+        a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
+        b = np.float32(1.0) - a / np.float32(depth_max)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            near = depth < np.float32(depth_max)  # False for NaN
+            inverse = np.where(near, a / depth + b, np.float32(0.0))
+        pixels = np.minimum(inverse, np.float32(65535.0)).astype(np.uint16)
+        params = (a, b)
+    else:
+        pixels = depth.copy()
+        pixels[pixels > min(int(depth_max * 1000.0), 65535)] = 0
+        params = (np.float32(0.0), np.float32(0.0))
+    config = np.array([(_INV_DEPTH, params)], dtype=_CONFIG_HEADER)
+    if codec == "rvl":
+        height, width = pixels.shape
+        stream = np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_compress(pixels)])
+    else:
+        ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, png_level])
+        if not ok:
+            msg = f"cannot encode a {pixels.shape[1]}x{pixels.shape[0]} depth image as PNG"
+            raise ImageError(msg)
+        stream = png.reshape(-1)
+    data = np.concatenate([config.view(np.uint8), stream])
+    return types.CompressedImage(header=header, format=f"{encoding}; compressedDepth {codec}", data=_bytes(types, data))
 
 
 def encoding_for(array_: np.ndarray) -> str:

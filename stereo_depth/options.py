@@ -23,7 +23,7 @@ from stereo_depth.core.option_fields import check_ranges, coerced, option
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams
 from stereo_depth.errors import ParameterError
 from stereo_depth.mask_image import read_mask
-from stereo_depth.messages import DEFAULT_MAX_PIXELS
+from stereo_depth.messages import COMPRESSED_DEPTH_FORMATS, DEFAULT_MAX_PIXELS
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,35 @@ class OutputOptions:
         0.0, "With organized_cloud false: one point per voxel of this edge, metres (0 = off)", 0.0, 100.0
     )
     points_max_rate: float = option(
-        0.0, "Publish points2 at most this often, Hz, judged by stamps (0 = every frame)", 0.0, 1000.0
+        0.0,
+        "Publish points2 (and points2_clearing) at most this often, Hz, judged by stamps (0 = every frame)",
+        0.0,
+        1000.0,
+    )
+    clearing_max_depth: float = option(
+        10.0,
+        "points2_clearing: each point lies along its pixel's ray at its depth, but no farther than this, "
+        "metres (a costmap clears free space out to it)",
+        0.1,
+        1e4,
+    )
+    compressed_depth_format: str = option(
+        "png",
+        "depth/compressedDepth codec: png or rvl (image_transport's compressedDepth format)",
+        choices=COMPRESSED_DEPTH_FORMATS,
+    )
+    compressed_depth_max_depth: float = option(
+        10.0, "depth/compressedDepth: farther depth is invalid in it, metres (the transport's depth_max)", 1.0, 100.0
+    )
+    compressed_depth_quantization: float = option(
+        100.0,
+        "depth/compressedDepth of 32FC1: depth at which the 16-bit inverse depth steps by 1 m, metres "
+        "(the transport's depth_quantization)",
+        1.0,
+        150.0,
+    )
+    compressed_depth_png_level: int = option(
+        3, "depth/compressedDepth PNG compression level (the transport's png_level)", 0, 9, 1
     )
 
     def validate(self) -> OutputOptions:
@@ -105,6 +133,11 @@ class NodeOptions:
     publish_disparity: bool = option(True, "Publish disparity (stereo_msgs/DisparityImage)")
     publish_depth: bool = option(True, "Publish depth (32FC1, metres, NaN invalid)")
     publish_points: bool = option(True, "Publish points2 (sensor_msgs/PointCloud2)")
+    publish_points_clearing: bool = option(
+        False,
+        "Publish points2_clearing: a point along the ray of each pixel matched beyond max_depth or at the "
+        "smallest disparity, for costmaps to clear free space with (stereo_node)",
+    )
     publish_confidence: bool = option(True, "Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
     calibration_check: bool = option(True, "Check now and then that rectified rows still agree (report in diagnostics)")
     calibration_check_every_n_frames: int = option(

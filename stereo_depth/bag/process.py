@@ -24,7 +24,7 @@ from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
 from stereo_depth.errors import BagError, StereoDepthError
-from stereo_depth.frames import OUTPUTS, Geometry, OutputState, decode_frame, frame_outputs, match_frame
+from stereo_depth.frames import DEFAULT_OUTPUTS, Geometry, OutputState, decode_frame, frame_outputs, match_frame
 from stereo_depth.options import NodeOptions, OutputOptions
 from stereo_depth.sync import StereoSet
 
@@ -36,7 +36,7 @@ class ProcessOptions:
     sync: NodeOptions = field(default_factory=NodeOptions)  # its sync options, as the node's
     storage: str = "mcap"
     compress: bool = False  # zstd chunks (MCAP only); off by default, as in `ros2 bag record`
-    outputs: tuple[str, ...] = OUTPUTS  # what stereo_node publishes by default (colour, confidence: when there)
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # stereo_node's default outputs (colour, confidence: when there)
     output: OutputOptions = field(default_factory=OutputOptions)  # how outputs are built, as the nodes'
     overwrite: bool = False
     png_dir: Path | None = None

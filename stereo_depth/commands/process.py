@@ -17,7 +17,7 @@ from stereo_depth.commands.process_many import add_fleet_options, check_single_b
 from stereo_depth.core.option_fields import option_names
 from stereo_depth.core.params import COMPAT_ALIASES, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
-from stereo_depth.frames import OUTPUTS
+from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS
 from stereo_depth.options import (
     SYNC_OPTIONS,
     NodeOptions,
@@ -69,11 +69,11 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
         "--outputs",
         nargs="+",
         choices=OUTPUTS,
-        default=list(OUTPUTS),
+        default=list(DEFAULT_OUTPUTS),
         metavar="NAME",
         help=(
-            f"topics to write (default all: {' '.join(OUTPUTS)}; colour and confidence when the input and "
-            "matcher give them); a VGA points2 is 10 MB a frame"
+            f"topics to write (default: {' '.join(DEFAULT_OUTPUTS)}; colour and confidence when the input and "
+            "matcher give them; also depth/compressedDepth, points2_clearing); a VGA points2 is 10 MB a frame"
         ),
     )
     parser.add_argument(

@@ -21,7 +21,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
@@ -39,7 +39,9 @@ OUTPUT_TYPES = {
     "confidence": Image,
     "depth": Image,
     "depth/camera_info": CameraInfo,
+    "depth/compressedDepth": CompressedImage,
     "points2": PointCloud2,
+    "points2_clearing": PointCloud2,
 }
 # the publish_* parameter that switches each output on or off
 SWITCHES = {
@@ -49,7 +51,9 @@ SWITCHES = {
     "confidence": "publish_confidence",
     "depth": "publish_depth",
     "depth/camera_info": "publish_depth",
+    "depth/compressedDepth": "publish_depth",  # built only while someone subscribes, as image_transport's
     "points2": "publish_points",
+    "points2_clearing": "publish_points_clearing",
 }
 
 
@@ -68,10 +72,16 @@ class StereoNode(StereoIONode):
         *CAMERA_OPTIONS,
         *CLOUD_OPTIONS,
         "depth_encoding",
+        "clearing_max_depth",
+        "compressed_depth_format",
+        "compressed_depth_max_depth",
+        "compressed_depth_quantization",
+        "compressed_depth_png_level",
         "publish_rectified",
         "publish_disparity",
         "publish_depth",
         "publish_points",
+        "publish_points_clearing",
         "publish_confidence",
         "calibration_check",
         "calibration_check_every_n_frames",

@@ -1,0 +1,116 @@
+"""What depth/compressedDepth saves and costs, and what points2_clearing costs, per VGA-sized frame.
+
+The frames: the six raw EuRoC pairs of test/data/euroc (752x480), matched with the default profile.
+Per depth encoding and codec: bytes of the raw depth image against the compressedDepth message's data,
+and the encode time (messages.depth_to_compressed_depth, as frames.geometry_outputs calls it); then
+the time to build points2_clearing (max_depth 5 m). Medians over frames x repeats; the CPU is printed.
+
+    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/compressed_depth.py [--repeat 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stereo_depth.core.params import make_params
+from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.frames import (
+    OutputState,
+    StereoFrame,
+    depth_pixels,
+    geometry_outputs,
+    result_geometry,
+)
+from stereo_depth.machine import print_machine
+from stereo_depth.messages import depth_to_compressed_depth, make_header
+from stereo_depth.options import OutputOptions
+from stereo_depth.ros.types import RCLPY_TYPES
+
+EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
+
+
+def cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown CPU"
+
+
+def median_ms(work: Callable[[], Any], repeat: int) -> tuple[float, float, Any]:
+    """(wall ms, this thread's CPU ms, result): on a shared machine the CPU time is the steadier figure."""
+    walls, cpus, result = [], [], None
+    for _ in range(repeat):
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        result = work()
+        cpus.append((time.thread_time() - start_cpu) * 1000.0)
+        walls.append((time.perf_counter() - start) * 1000.0)
+    return statistics.median(walls), statistics.median(cpus), result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=10)
+    args = parser.parse_args()
+    print_machine()
+    pipeline = StereoPipeline(make_params())
+    camera = pipeline.camera_for(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml"))
+    header = make_header(RCLPY_TYPES, 1, "cam0")
+    depths, geometries = [], []
+    for path in sorted((EUROC / "left").glob("*.png")):
+        left, right = (cv2.imread(str(EUROC / side / path.name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right"))
+        assert left is not None and right is not None, f"cannot read the EuRoC pair {path.name}"
+        frame = StereoFrame(1, header, left, right, camera, rectified=False)
+        geometry = result_geometry(pipeline, frame, pipeline.match(left, right, camera))
+        depths.append(geometry.depth.copy())
+        geometries.append((frame, geometry))
+    height, width = depths[0].shape
+    print(f"{cpu_name()}; {len(depths)} EuRoC frames {width}x{height}, default profile; medians of {args.repeat} runs")
+    print("| depth | codec | raw bytes | compressedDepth bytes | ratio | encode ms (wall / CPU) |")
+    print("|---|---|---|---|---|---|")
+    for encoding in ("32FC1", "16UC1"):
+        for codec in ("png", "rvl"):
+            sizes, walls, cpus = [], [], []
+            for depth in depths:
+                pixels = depth_pixels(depth, encoding)
+
+                def encode(pixels: np.ndarray = pixels, encoding: str = encoding, codec: str = codec) -> Any:
+                    return depth_to_compressed_depth(RCLPY_TYPES, header, pixels, encoding, codec=codec)
+
+                wall, cpu, message = median_ms(encode, args.repeat)
+                walls.append(wall)
+                cpus.append(cpu)
+                sizes.append(len(message.data))
+            raw = depths[0].size * (4 if encoding == "32FC1" else 2)
+            size = statistics.median(sizes)
+            ms = f"{statistics.median(walls):.1f} / {statistics.median(cpus):.1f}"
+            print(f"| {encoding} | {codec} | {raw} | {size:.0f} | {raw / size:.1f}x | {ms} |")
+    options = OutputOptions(max_depth=5.0)
+    walls, cpus, widths = [], [], []
+    for frame, geometry in geometries:
+        state = OutputState()
+
+        def clearing(frame: StereoFrame = frame, geometry: Any = geometry, state: OutputState = state) -> Any:
+            fresh = geometry._replace(depth=geometry.depth.copy())  # geometry_outputs limits depth in place
+            return geometry_outputs(RCLPY_TYPES, frame.header, fresh, options, ("points2_clearing",), state)
+
+        wall, cpu, messages = median_ms(clearing, args.repeat)
+        walls.append(wall)
+        cpus.append(cpu)
+        widths.append(messages["points2_clearing"].width)
+    print(
+        f"points2_clearing (max_depth 5 m): {statistics.median(widths):.0f} points, "
+        f"{statistics.median(walls):.1f} / {statistics.median(cpus):.1f} ms wall / CPU to build (depth copy included)"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,286 @@
+"""What costmaps read besides depth and points2: `points2_clearing` (free space out to the far pixels)
+and `depth/compressedDepth` (image_transport's compressedDepth), from stereo_node over real DDS on the
+raw EuRoC pair and from `stereo-depth process` on the bundled bag.
+
+The compressedDepth messages are decoded here by the documented layout alone (compressed_depth_image_
+transport's codec.cpp and rvl_codec.cpp): format "<encoding>; compressedDepth <png|rvl>", a 12-byte
+ConfigHeader (int32 compressionFormat, float32 depthParam[2]), then PNG, or RVL (uint32 width, uint32
+height, then 4-bit groups in little-endian int32 words, the first group in the top bits).
+"""
+
+from __future__ import annotations
+
+import itertools
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from ros_helpers import NodeProcess, RosHarness, wait_until
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+from test_nodes import Pair, StereoInput, euroc_pair
+
+from stereo_depth.bag.reader import read_messages
+from stereo_depth.cli import main
+from stereo_depth.core.rvl import rvl_compress
+from stereo_depth.messages import cloud_to_arrays, disparity_from_msg, image_to_array
+
+NS = "/clear"
+BAG = Path(__file__).resolve().parents[1] / "bags" / "euroc_raw"
+OUTPUTS = {
+    "disparity": DisparityImage,
+    "depth": Image,
+    "depth/camera_info": CameraInfo,
+    "depth/compressedDepth": CompressedImage,
+    "points2": PointCloud2,
+    "points2_clearing": PointCloud2,
+}
+_stamps = itertools.count(1_900_000_000 * 10**9, 250_000_000)
+
+
+# ---------------------------------------------------------------- a decoder written from the format
+
+
+def rvl_decode(data: bytes, pixels: int) -> np.ndarray:
+    """RVL: per run the count of zeros, the count of nonzeros, then each nonzero as the zigzag delta to
+    the previous nonzero; each value in 3-bit groups, low group first, bit 3 set while more follow."""
+    words = np.frombuffer(data, "<u4")
+    nibbles = ((words[:, None] >> np.arange(28, -1, -4, dtype=np.uint32)) & 0xF).ravel().astype(np.int64)
+    last = (nibbles & 8) == 0  # the last group of a value
+    value_of = np.concatenate([[0], np.cumsum(last)[:-1]])
+    first = np.concatenate([[0], np.flatnonzero(last)[:-1] + 1])
+    shift = 3 * (np.arange(nibbles.size) - first[value_of])
+    values = np.bincount(value_of, weights=(nibbles & 7) << shift).astype(np.int64)[: int(last.sum())]
+    out, at, previous, i = np.zeros(pixels, np.int64), 0, 0, 0
+    while at < pixels:
+        zeros, nonzeros = int(values[i]), int(values[i + 1])
+        zigzag = values[i + 2 : i + 2 + nonzeros]
+        deltas = (zigzag >> 1) ^ -(zigzag & 1)
+        at += zeros
+        out[at : at + nonzeros] = previous + np.cumsum(deltas)
+        previous = int(out[at + nonzeros - 1]) if nonzeros else previous
+        at, i = at + nonzeros, i + 2 + nonzeros
+    return out.astype(np.uint16)
+
+
+def decode_compressed_depth(msg: Any) -> tuple[np.ndarray, str, str]:
+    """(depth as the subscriber gives it, encoding, codec): 32FC1 metres (NaN invalid) or 16UC1 mm."""
+    encoding, _, rest = str(msg.format).partition("; compressedDepth ")
+    data = bytes(msg.data)
+    compression_format, quant_a, quant_b = struct.unpack("<iff", data[:12])
+    assert compression_format == 0  # INV_DEPTH
+    pixels: np.ndarray | None
+    if rest == "rvl":
+        width, height = struct.unpack("<II", data[12:20])
+        pixels = rvl_decode(data[20:], width * height).reshape(height, width)
+    else:
+        assert rest == "png"
+        pixels = cv2.imdecode(np.frombuffer(data[12:], np.uint8), cv2.IMREAD_UNCHANGED)
+    assert pixels is not None and pixels.dtype == np.uint16
+    if encoding == "16UC1":
+        return pixels, encoding, rest
+    with np.errstate(divide="ignore"):
+        depth = np.float32(quant_a) / (pixels.astype(np.float32) - np.float32(quant_b))
+    depth[pixels == 0] = np.nan
+    return depth, encoding, rest
+
+
+def assert_decodes_to_depth(compressed: Any, depth_msg: Any, depth_max: float = 10.0, z0: float = 100.0) -> None:
+    decoded, encoding, _ = decode_compressed_depth(compressed)
+    depth = image_to_array(depth_msg)
+    assert encoding == depth_msg.encoding and decoded.shape == depth.shape
+    if encoding == "16UC1":  # lossless, but nothing beyond depth_max (the plugin's rule)
+        expected = np.where(depth > depth_max * 1000, 0, depth)
+        np.testing.assert_array_equal(decoded, expected)
+        assert (expected > 0).mean() > 0.5
+        return
+    kept = depth < depth_max  # NaN and depth_max and beyond: invalid after the round trip
+    np.testing.assert_array_equal(np.isfinite(decoded), kept)
+    assert kept.mean() > 0.5
+    # 16-bit inverse depth q = A / z + B, truncated: the decoded depth is never nearer, and its inverse
+    # is off by less than one step 1 / A (A = z0 (z0 + 1)); 1e-6 of float32 rounding on top
+    a = z0 * (z0 + 1)
+    z, back = depth[kept].astype(np.float64), decoded[kept].astype(np.float64)
+    assert np.all(back >= z * (1 - 1e-6))
+    assert np.all(1 / z - 1 / back < 1 / a + 1e-6 / z)
+
+
+def test_rvl_words_are_the_documented_groups_in_order() -> None:
+    # values: 2 zeros, 2 nonzeros, zigzag(5 - 0) = 10, zigzag(7 - 5) = 4, 1 zero, 0 nonzeros;
+    # groups: 2 | 2 | 10 = 0b1_010 -> 0xA (2, more follow), 0x1 | 4 | 1 | 0; the word filled from the top
+    # and zero-filled: 0x22A14100, stored little-endian
+    assert rvl_compress(np.array([[0, 0, 5, 7, 0]], np.uint16)).tobytes() == bytes.fromhex("0041a122")
+    ramp = np.arange(1, 41, dtype=np.uint16).reshape(5, 8)  # no zero run first: an empty one is written
+    np.testing.assert_array_equal(rvl_decode(rvl_compress(ramp).tobytes(), ramp.size), ramp.ravel())
+
+
+# ---------------------------------------------------------------- live
+
+
+@pytest.fixture(scope="module")
+def euroc() -> Pair:
+    return euroc_pair()
+
+
+@pytest.fixture(scope="module")
+def nav(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    node = NodeProcess(
+        "stereo_node", NS, ros_env, tmp_path_factory.mktemp("clear_logs"), ["-p", "publish_points_clearing:=true"]
+    )
+    with ros.running([node]):
+        collectors = {name: ros.collector(msg_type, f"{NS}/{name}") for name, msg_type in OUTPUTS.items()}
+        for collector in collectors.values():
+            wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
+        inputs = StereoInput(ros, NS)
+        inputs.wait_matched()
+        yield {"inputs": inputs, **collectors}
+
+
+def send(ros: RosHarness, nav: dict[str, Any], pair: Pair, **options: Any) -> dict[str, Any]:
+    """Set `options`, send the pair once, return every output of that frame; options restored."""
+    fqn = f"{NS}/stereo_node"
+    previous = ros.get_parameters(fqn, *options)
+    results = ros.set_parameters(fqn, **options)
+    assert all(r.successful for r in results), [r.reason for r in results]
+    try:
+        stamp = next(_stamps)
+        nav["inputs"].publish(pair, stamp)
+        return {name: nav[name].wait_stamp(stamp) for name in OUTPUTS}
+    finally:
+        ros.set_parameters(fqn, **previous)
+
+
+def clearing_pixels(cloud: Any, info: Any, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel index, z) of each clearing point, the pixel found by projecting it with depth/camera_info."""
+    xyz = cloud_to_arrays(cloud)[0].reshape(-1, 3).astype(np.float64)
+    k = np.reshape(info.k, (3, 3))
+    u = k[0, 0] * xyz[:, 0] / xyz[:, 2] + k[0, 2]
+    v = k[1, 1] * xyz[:, 1] / xyz[:, 2] + k[1, 2]
+    assert np.abs(u - np.rint(u)).max() < 1e-3 and np.abs(v - np.rint(v)).max() < 1e-3  # on a pixel's ray
+    return np.rint(v).astype(int) * shape[1] + np.rint(u).astype(int), xyz[:, 2]
+
+
+def test_pixels_beyond_max_depth_clear_out_to_the_clamp_and_never_mark(
+    ros: RosHarness, nav: dict[str, Any], euroc: Pair
+) -> None:
+    full = image_to_array(send(ros, nav, euroc)["depth"])
+    got = send(ros, nav, euroc, max_depth=5.0, clearing_max_depth=7.0)
+    cloud = got["points2_clearing"]
+    assert (cloud.height, cloud.is_dense) == (1, True)
+    pixels, z = clearing_pixels(cloud, got["depth/camera_info"], full.shape)
+    beyond = full.ravel() > 5.0
+    assert beyond.sum() > 1000 and (full.ravel() > 7.0).sum() > 100  # both rules bite on this scene
+    message = got["disparity"]
+    smallest = (disparity_from_msg(message) < message.min_disparity + 1).ravel()  # SGBM: d = 0 in glare
+    expected = np.flatnonzero(beyond | smallest)
+    np.testing.assert_array_equal(pixels, expected)  # one point per such pixel, in pixel order
+    np.testing.assert_array_equal(z.astype(np.float32), np.fmin(full.ravel()[expected], np.float32(7.0)))
+    marked = cloud_to_arrays(got["points2"])[0][:, :, 2].ravel()
+    assert not np.isfinite(marked[beyond]).any()  # never in points2
+    assert not np.isfinite(image_to_array(got["depth"]).ravel()[beyond]).any()
+
+
+def test_pixels_at_the_smallest_disparity_clear_even_without_max_depth(
+    ros: RosHarness, nav: dict[str, Any], euroc: Pair
+) -> None:
+    got = send(ros, nav, euroc, min_disparity=16, clearing_max_depth=100.0)
+    depth = image_to_array(got["depth"])
+    message = got["disparity"]
+    d = disparity_from_msg(message)
+    pixels, z = clearing_pixels(got["points2_clearing"], got["depth/camera_info"], depth.shape)
+    smallest = np.flatnonzero(d < message.min_disparity + 1)  # NaN (not matched): never
+    assert smallest.size > 500  # the farther half of the room saturates at 16 px
+    np.testing.assert_array_equal(pixels, smallest)
+    np.testing.assert_array_equal(z.astype(np.float32), depth.ravel()[smallest])  # as far as the matcher sees
+
+
+@pytest.mark.parametrize(
+    ("encoding", "codec"), [("32FC1", "png"), ("16UC1", "png"), ("32FC1", "rvl"), ("16UC1", "rvl")]
+)
+def test_compressed_depth_decodes_to_the_depth_image(
+    ros: RosHarness, nav: dict[str, Any], euroc: Pair, encoding: str, codec: str
+) -> None:
+    got = send(ros, nav, euroc, depth_encoding=encoding, compressed_depth_format=codec)
+    compressed = got["depth/compressedDepth"]
+    assert compressed.format == f"{encoding}; compressedDepth {codec}"
+    assert compressed.header == got["depth"].header
+    assert len(compressed.data) < len(got["depth"].data) / 2
+    assert_decodes_to_depth(compressed, got["depth"])
+
+
+# ---------------------------------------------------------------- offline
+
+
+def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -> None:
+    out = tmp_path / "nav"
+    outputs = ["depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing"]
+    settings = ["depth_encoding=16UC1", "max_depth=5", "clearing_max_depth=7", "compressed_depth_max_depth=20"]
+    args = ["process", str(BAG), str(out), "--outputs", *outputs, *(a for s in settings for a in ("--set", s))]
+    assert main(args) == 0
+    topics = {name: f"/stereo/{name}" for name in outputs}
+    messages = read_messages(out, list(topics.values()))
+    got = {name: messages[topic] for name, topic in topics.items()}
+    assert all(len(m) == 6 for m in got.values())
+    free = tmp_path / "free"
+    assert main(["process", str(BAG), str(free), "--set", "depth_encoding=16UC1"]) == 0
+    full_depths = read_messages(free, ["/stereo/depth"])["/stereo/depth"]
+    metadata = yaml.safe_load((free / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    written = {t["topic_metadata"]["name"] for t in metadata["topics_with_message_count"]}
+    assert "/stereo/points2" in written  # the defaults: what stereo_node publishes unless told
+    assert not written & {"/stereo/points2_clearing", "/stereo/depth/compressedDepth"}
+    for index, full_msg in enumerate(full_depths):
+        assert_decodes_to_depth(got["depth/compressedDepth"][index], got["depth"][index], depth_max=20.0)
+        full = image_to_array(full_msg).astype(np.float64) / 1000.0
+        pixels, z = clearing_pixels(got["points2_clearing"][index], got["depth/camera_info"][index], full.shape)
+        beyond = np.flatnonzero(full > 5.0)
+        assert beyond.size > 1000
+        assert np.isin(beyond, pixels).all()
+        at = np.searchsorted(pixels, beyond)
+        np.testing.assert_allclose(z[at], np.minimum(full.ravel()[beyond], 7.0), atol=5e-4)  # depth: mm here
+        assert np.nanmax(cloud_to_arrays(got["points2"][index])[0][:, :, 2]) <= 5.0
+
+
+def test_compressed_depth_is_encoded_only_while_someone_subscribes(
+    ros: RosHarness, ros_env: dict[str, str], euroc: Pair, tmp_path: Path
+) -> None:
+    node = NodeProcess("stereo_node", "/quiet", ros_env, tmp_path)
+    with ros.running([node]):
+        depth = ros.collector(Image, "/quiet/depth")
+        diagnostics = ros.collector(DiagnosticArray, "/quiet/diagnostics")
+        for collector in (depth, diagnostics):
+            wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
+        inputs = StereoInput(ros, "/quiet")
+        inputs.wait_matched()
+
+        def stages_once_reported(stage: str) -> set[str]:
+            """The stage keys of the first diagnostics report (from now on) that times `stage`."""
+            seen = len(diagnostics.messages)
+
+            def reported() -> set[str] | None:
+                for array in diagnostics.messages[seen:]:
+                    keys = {kv.key for kv in array.status[0].values}
+                    if stage in keys:
+                        return keys
+                return None
+
+            keys: set[str] = wait_until(reported, f"a diagnostics report with {stage}")
+            return keys
+
+        stamp = next(_stamps)
+        inputs.publish(euroc, stamp)
+        depth.wait_stamp(stamp)
+        stages = stages_once_reported("publish depth time (ms)")
+        assert "publish depth/compressedDepth time (ms)" not in stages  # nobody listens: never built
+
+        compressed = ros.collector(CompressedImage, "/quiet/depth/compressedDepth")
+        wait_until(lambda: compressed.subscription.get_publisher_count() >= 1, "compressedDepth matched")
+        stamp = next(_stamps)
+        inputs.publish(euroc, stamp)
+        assert_decodes_to_depth(compressed.wait_stamp(stamp), depth.wait_stamp(stamp))
+        stages_once_reported("publish depth/compressedDepth time (ms)")
