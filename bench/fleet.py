@@ -114,7 +114,7 @@ def main() -> None:
                 continue
             print(f"{name:14s}{wall:8.2f}{rate:10.1f}{rate / baseline:10.2f}x{per_core:19.1f}", flush=True)
     started, per_task = ray_costs(500)
-    print(f"Ray: {started:.1f} s to start a local instance and its workers; {per_task:.2f} ms per no-op task")
+    print(f"\nRay: {started:.1f} s to start a local instance and its workers; {per_task:.2f} ms per no-op task")
 
 
 if __name__ == "__main__":

@@ -11,8 +11,9 @@ def table_row(cells: Iterable[object]) -> str:
 
 
 def table_header(columns: Iterable[str]) -> str:
+    """After an empty line: a table must not continue a caption's paragraph."""
     names = list(columns)
-    return table_row(names) + "\n|" + "|".join("---" for _ in names) + "|"
+    return "\n" + table_row(names) + "\n|" + "|".join("---" for _ in names) + "|"
 
 
 def times(ratio: float) -> str:

@@ -183,6 +183,8 @@ SECTIONS: dict[str, Callable[[Run], bool]] = {
     "Performance": performance,
 }
 
+CENSUS_SECTIONS = {"Profiles and accuracy", "Performance"}  # those that run the census_sgm core
+
 
 def hold_cpu_lock() -> int:
     """The lock `flock /tmp/stereo_depth_cpu.lock` takes, held until this process ends."""
@@ -213,7 +215,8 @@ def main() -> int:
     failed = []
     with tempfile.TemporaryDirectory(prefix="bench_readme_") as work:
         run = Run(args, args.data, args.out, Path(work))
-        run.command(sys.executable, "-m", "stereo_depth.cli", "compile")  # no bench waits for numba
+        if CENSUS_SECTIONS & set(args.sections):  # compiled (or loaded) now: no bench waits for numba
+            run.command(sys.executable, "-m", "stereo_depth.cli", "compile")
         print_machine()
         if args.quick:
             print("--quick: fewer repeats and frames; these figures are noise\n")
