@@ -66,7 +66,7 @@ def main() -> None:
     picture = np.vstack([np.hstack(panels[:half]), np.hstack(panels[half:])])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out), picture)
-    print(f"picture: {args.out}")
+    print(f"\npicture: {args.out}")
 
 
 if __name__ == "__main__":

@@ -75,7 +75,7 @@ def main() -> None:
     ((left, right),) = list(frames(width, height, 1))
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {width}x{height}, anchor frames")
     if args.markdown:
-        print(table_header(("matcher", "1 frame ms", "2 at once, ms per frame", "rate 2 / 1", "ours vs whole image")))
+        print(table_header(("matcher", "1 frame ms", "2 at once, ms per frame", "rate 2 / 1", "whole image / ours")))
     else:
         print(f"{'matcher':38s} {'1 frame ms':>10s} {'2 at once ms':>12s} {'throughput':>10s}")
     ours_ms = 0.0
@@ -86,7 +86,7 @@ def main() -> None:
             matcher.compute(left, right)  # warm-up (numba loads its cache here)
         one = seconds_per_frame(matchers[:1], left, right, args.frames)
         two = seconds_per_frame(matchers, left, right, args.frames)
-        if args.markdown:  # the whole-image rows: how much sooner our halves-at-once matcher is
+        if args.markdown:  # whole-image rows: how much sooner our halves-at-once matcher (the row above) is
             sooner = times(one * 1e3 / ours_ms) if whole_image else ""
             print(
                 table_row((name.strip(), f"{one * 1e3:.1f}", f"{two * 1e3:.1f}", times(one / two), sooner)), flush=True

@@ -155,7 +155,8 @@ def anchor(work: Path, quick: bool) -> bool:
         if theirs:
             points = theirs.get("points2_hz")
             dropped = f"{theirs['disparity_dropped']:.0f}" + (f" / {theirs['points2_dropped']:.0f}" if points else "")
-            cells = [case, "C++ ROS 1 stereo_image_proc (16 B points)", f"{theirs['disparity_hz']:.1f}"]
+            label = "C++ ROS 1 stereo_image_proc" + (" (16 B points)" if points else "")
+            cells = [case, label, f"{theirs['disparity_hz']:.1f}"]
             cells += [f"{points:.1f}" if points else "-", dropped, f"{theirs['disparity_lat_ms_median']:.1f}"]
             points_latency = theirs.get("points2_lat_ms_median")
             cells += [f"{points_latency:.1f}" if points_latency else "-", "1.00x (baseline)"]

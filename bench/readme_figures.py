@@ -186,6 +186,15 @@ SECTIONS: dict[str, Callable[[Run], bool]] = {
 CENSUS_SECTIONS = {"Profiles and accuracy", "Performance"}  # those that run the census_sgm core
 
 
+def machine_header() -> tuple[str, str]:
+    """The machine header and the 'Measured on:' line as the benches see the machine: from a fresh process
+    with this run's environment (numba and OpenCV read their SIMD settings when they are imported)."""
+    code = "from stereo_depth.machine import measured_on, print_machine; print_machine(); print(measured_on())"
+    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    header, measured_on = printed.strip().rsplit("\n", 1)
+    return header.strip(), measured_on
+
+
 def hold_cpu_lock() -> int:
     """The lock `flock /tmp/stereo_depth_cpu.lock` takes, held until this process ends."""
     handle = os.open(CPU_LOCK, os.O_RDWR | os.O_CREAT, 0o666)
@@ -205,11 +214,9 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data", help="the profile table's scenes")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench-readme", help="pictures")
     args = parser.parse_args()
-    if args.simd != "native":  # before numba and OpenCV are imported here or in any bench
+    if args.simd != "native":  # for every bench this run starts
         cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stereo_depth" / f"numba_{args.simd}"
         os.environ.update(SIMD_ENV[args.simd], NUMBA_CACHE_DIR=str(cache))
-    from stereo_depth.machine import measured_on, print_machine
-
     lock = hold_cpu_lock()
     args.out.mkdir(parents=True, exist_ok=True)
     failed = []
@@ -217,11 +224,12 @@ def main() -> int:
         run = Run(args, args.data, args.out, Path(work))
         if CENSUS_SECTIONS & set(args.sections):  # compiled (or loaded) now: no bench waits for numba
             run.command(sys.executable, "-m", "stereo_depth.cli", "compile")
-        print_machine()
+        header, measured_on = machine_header()
+        print(header + "\n")
         if args.quick:
             print("--quick: fewer repeats and frames; these figures are noise\n")
         for heading in (heading for heading in SECTIONS if heading in args.sections):
-            print(f"## {heading}\n\n{measured_on()}\n", flush=True)
+            print(f"## {heading}\n\n{measured_on}\n", flush=True)
             if not SECTIONS[heading](run):
                 failed.append(heading)
             print(flush=True)
