@@ -102,19 +102,26 @@ def main() -> None:
         for bag in bags:
             write_bag(bag, width, height, args.frames)
         baseline = 0.0
+        walls, frame_ms = {}, 0.0  # frame_ms: one frame's work in a task, `--jobs 1`
         for name, (flags, extra_env) in MODES.items():
             out = folder / name.strip("-").replace(" ", "_")
             wall, totals = run_mode(bags, out, args.profile, flags, extra_env)
             rate = totals["frames"] / wall
             baseline = baseline or rate
             per_core = totals["frames"] / totals["task_seconds"]
+            walls[name], frame_ms = wall, frame_ms or 1000.0 / per_core
             if args.markdown:
                 cells = (f"`{name}`", f"{wall:.1f}", f"{rate:.1f}", times(rate / baseline), f"{per_core:.1f}")
                 print(table_row(cells), flush=True)
                 continue
             print(f"{name:14s}{wall:8.2f}{rate:10.1f}{rate / baseline:10.2f}x{per_core:19.1f}", flush=True)
     started, per_task = ray_costs(500)
-    print(f"\nRay: {started:.1f} s to start a local instance and its workers; {per_task:.2f} ms per no-op task")
+    start_share, task_share = started / walls["--ray"], per_task / frame_ms
+    print(
+        f"\nRay: {started:.1f} s to start a local instance and its workers ({times(start_share)} the `--ray` run's",
+        end="",
+    )
+    print(f" wall time); {per_task:.2f} ms per no-op task ({task_share:.3f}x one frame's work in a task)")
 
 
 if __name__ == "__main__":

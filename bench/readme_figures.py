@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import fcntl
+import json
 import os
 import subprocess
 import sys
@@ -30,6 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 import readme_e2e
+from markdown_table import table_header, table_row, times
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "bench"
@@ -48,11 +50,9 @@ SIMD_ENV = {
 
 @dataclass(frozen=True)
 class Run:
-    """One step of the run: what it needs (the options) and which lines of markdown it prints."""
+    """What each section needs: the command line's options and a scratch folder for the benches' reports."""
 
     args: argparse.Namespace
-    data: Path
-    out: Path
     work: Path
 
     def bench(self, script: str, *arguments: str, quick: tuple[str, ...] = ()) -> bool:
@@ -68,6 +68,7 @@ class Run:
 
 
 def forward_markdown(command: list[str]) -> bool:
+    """Runs a bench and prints its output but its leading machine header; False (and a note) if it failed."""
     print(f"$ {' '.join(command)}", file=sys.stderr, flush=True)
     with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as child:
         assert child.stdout is not None
@@ -84,7 +85,7 @@ def forward_markdown(command: list[str]) -> bool:
 
 def scenes(run: Run) -> list[str]:
     """The README's evaluation scenes: Middlebury 2001-2014 and KITTI with ground truth (--quick: 4)."""
-    found = sorted(str(p) for p in run.data.glob("*/*/") if p.parent.name.startswith(("middlebury", "kitti")))
+    found = sorted(str(p) for p in run.args.data.glob("*/*/") if p.parent.name.startswith(("middlebury", "kitti")))
     return found[:4] if run.args.quick else found
 
 
@@ -115,9 +116,9 @@ def profiles_and_accuracy(run: Run) -> bool:
         print(f"\nConfidence (`bench/confidence.py`, profile quality, {len(found)} scenes):\n")
         ok = run.bench("confidence.py", *found) and ok
     else:
-        print(f"(profile table and confidence skipped: no scenes under {run.data}; pass --data)")
+        print(f"(profile table and confidence skipped: no scenes under {run.args.data}; pass --data)")
     print("\nOne comparison on Middlebury Cones (`bench/compare_profiles.py`):\n")
-    picture = run.out / "profiles_cones.png"
+    picture = run.args.out / "profiles_cones.png"
     cones = ("test/data/scenes/cones", "--out", str(picture))
     ok = run.bench("compare_profiles.py", *cones, quick=("--repeat", "1")) and ok
     print("\nThe census core's matching against OpenCV's SGBM 3-way, 128 disparities (`bench/pipeline_stages.py`):\n")
@@ -139,10 +140,6 @@ EVAL_PROFILES = (
 
 def eval_profiles(run: Run, found: list[str]) -> bool:
     """`stereo-depth eval` per profile (best of 3 per scene), the means as the README's profile table."""
-    import json
-
-    from markdown_table import table_header, table_row, times
-
     repeat = "1" if run.args.quick else "3"
     means: dict[str, dict[str, float]] = {}
     for label, options in EVAL_PROFILES:
@@ -152,7 +149,7 @@ def eval_profiles(run: Run, found: list[str]) -> bool:
             print(f"(failed: {' '.join(options)})")
             return False
         means[label] = json.loads(report.read_text())["mean"]
-    print(f"{len(found)} scenes with ground truth under {run.data}, times the best of {repeat} runs per scene:\n")
+    print(f"{len(found)} scenes with ground truth under {run.args.data}, times the best of {repeat} runs per scene:\n")
     columns = ("profile", "mean bad-2", "bad-2 over estimated", "density", "ms per scene", "vs `default`")
     print(table_header(columns))
     baseline = means[EVAL_PROFILES[0][0]]["ms"]
@@ -221,7 +218,7 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     failed = []
     with tempfile.TemporaryDirectory(prefix="bench_readme_") as work:
-        run = Run(args, args.data, args.out, Path(work))
+        run = Run(args, Path(work))
         if CENSUS_SECTIONS & set(args.sections):  # compiled (or loaded) now: no bench waits for numba
             run.command(sys.executable, "-m", "stereo_depth.cli", "compile")
         header, measured_on = machine_header()
