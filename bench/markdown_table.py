@@ -19,3 +19,8 @@ def table_header(columns: Iterable[str]) -> str:
 def times(ratio: float) -> str:
     """A ratio against the baseline measured in the same run, as the README writes it."""
     return f"{ratio:.2f}x"
+
+
+def ratio(value: float, baseline: float) -> float:
+    """value / baseline; NaN where the baseline is 0 (a run that delivered nothing)."""
+    return value / baseline if baseline else float("nan")

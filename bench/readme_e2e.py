@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from e2e_dds import PAIRING, median_row
-from markdown_table import table_header, table_row, times
+from markdown_table import ratio, table_header, table_row, times
 
 E2E = Path(__file__).resolve().parent / "e2e_dds.py"
 ANCHOR_SUMMARY = Path("/tmp/sip_anchor/summary.json")
@@ -28,6 +28,8 @@ PAIRING_LABELS = {
     "bm_vga_30_bursts_of_3": "camera_info first, bursts of 3 frames",
 }
 OUTPUTS = ("disparity", "points2")
+LATENCIES = ("lat_median", "lat_p95", "send_lat_median", "send_lat_p95")
+NAN = float("nan")
 BARE_NONE, BARE_ALL = ("bare_vga_30", "none"), ("bare_vga_30", "all")
 QUEUE_CASE = "bm_vga_30_bgr8_info_first"  # the case whose DDS bursts a short queue turns into losses
 DEFAULT_WAITING = 3  # max_waiting_frames' default, measured in the pairing run
@@ -70,11 +72,14 @@ def e2e_rows(work: Path, quick: bool, *options: str) -> dict[tuple[str, str], di
         return None
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for row in json.loads(report.read_text()):
+        for output in (row[name] for name in OUTPUTS if row[name]):  # no output seen: no latency, NaN
+            output.update({key: output.get(key, NAN) for key in LATENCIES})
         runs.setdefault((row["case"], row["profile"]), []).append(row)
     return {key: median_row(rows) if len(rows) > 1 else rows[0] for key, rows in runs.items()}
 
 
 def span(values: list[float], digits: int = 0) -> str:
+    values = [v for v in values if v == v] or [NAN]
     low, high = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
     return low if low == high else f"{low}-{high}"
 
@@ -127,8 +132,8 @@ def queue_lengths(work: Path, quick: bool, default_row: dict[str, Any]) -> bool:
         row = by_waiting[waiting]
         latency = latency_pair(row, "send_lat_median")
         cells = (waiting, f"{row['disparity']['hz']:.1f}", f"{row['disparity']['dropped']:.0f}")
-        ratio = f"{times(latency[0] / base[0])} / {times(latency[1] / base[1])}"
-        print(table_row((*cells, f"{latency[0]:.0f} / {latency[1]:.0f}", ratio)))
+        versus = f"{times(latency[0] / base[0])} / {times(latency[1] / base[1])}"
+        print(table_row((*cells, f"{latency[0]:.0f} / {latency[1]:.0f}", versus)))
     return True
 
 
@@ -171,13 +176,13 @@ def anchor(work: Path, quick: bool) -> bool:
 def node_cells(row: dict[str, Any], theirs: dict[str, Any] | None) -> tuple[str, ...]:
     d, p = row["disparity"], row["points2"]
     latency = f"{p['lat_median']:.1f} ({p['lat_p95']:.1f})" if p else "-"
-    ratio = "-"
+    versus = "-"
     if theirs:
-        ratio = times(d["lat_median"] / theirs["disparity_lat_ms_median"])
+        versus = times(d["lat_median"] / theirs["disparity_lat_ms_median"])
         if p and theirs.get("points2_lat_ms_median"):
-            ratio += f" / {times(p['lat_median'] / theirs['points2_lat_ms_median'])}"
+            versus += f" / {times(p['lat_median'] / theirs['points2_lat_ms_median'])}"
     dropped = f"{d['dropped']:.0f}" + (f" / {p['dropped']:.0f}" if p else "")
-    cells = (f"{d['hz']:.1f}", f"{p['hz']:.1f}" if p else "-", dropped, f"{d['lat_median']:.1f}", latency, ratio)
+    cells = (f"{d['hz']:.1f}", f"{p['hz']:.1f}" if p else "-", dropped, f"{d['lat_median']:.1f}", latency, versus)
     return (*cells, f"{row['node_cpu_pct']:.0f}%")
 
 
@@ -192,5 +197,7 @@ def quality(work: Path, quick: bool) -> bool:
     for case in QUALITY_CASES:
         row = rows[(case, "all")]
         hz = row["disparity"]["hz"]
-        print(table_row((f"`{case.split('_')[0]}`", f"{hz:.1f}", times(hz / base), f"{row['node_cpu_pct']:.0f}%")))
+        print(
+            table_row((f"`{case.split('_')[0]}`", f"{hz:.1f}", times(ratio(hz, base)), f"{row['node_cpu_pct']:.0f}%"))
+        )
     return True

@@ -227,7 +227,12 @@ def main() -> int:
             print("--quick: fewer repeats and frames; these figures are noise\n")
         for heading in (heading for heading in SECTIONS if heading in args.sections):
             print(f"## {heading}\n\n{measured_on}\n", flush=True)
-            if not SECTIONS[heading](run):
+            try:
+                ok = SECTIONS[heading](run)
+            except (KeyError, ValueError, OSError) as error:  # a report it cannot read: the other sections still run
+                print(f"(failed: {type(error).__name__}: {error})")
+                ok = False
+            if not ok:
                 failed.append(heading)
             print(flush=True)
     os.close(lock)
