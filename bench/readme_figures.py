@@ -149,7 +149,8 @@ def eval_profiles(run: Run, found: list[str]) -> bool:
             print(f"(failed: {' '.join(options)})")
             return False
         means[label] = json.loads(report.read_text())["mean"]
-    print(f"{len(found)} scenes with ground truth under {run.args.data}, times the best of {repeat} runs per scene:\n")
+    data = os.path.relpath(run.args.data, ROOT)
+    print(f"{len(found)} scenes with ground truth under {data}, times the best of {repeat} runs per scene:\n")
     columns = ("profile", "mean bad-2", "bad-2 over estimated", "density", "ms per scene", "vs `default`")
     print(table_header(columns))
     baseline = means[EVAL_PROFILES[0][0]]["ms"]
