@@ -71,5 +71,12 @@ lint: venv
 	$(VENV)/bin/mypy stereo_depth
 	$(VENV)/bin/mypy --allow-untyped-calls test bench tools
 
+# Every speed figure the README quotes, remeasured under the CPU lock and printed in the README's own
+# tables (markdown on stdout, the benches' progress on stderr); about 15 minutes. ARGS="--quick" checks that
+# it works (11 minutes on a loaded 2-core machine); ARGS="--simd avx2" or "--simd 128" measures another
+# SIMD level on this machine.
+bench-readme: venv
+	$(VENV)/bin/python bench/readme_figures.py $(ARGS)
+
 clean:
 	rm -rf $(VENV) $(MIN_VENV) build install log out

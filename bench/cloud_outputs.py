@@ -4,13 +4,14 @@ build time (frames.geometry_outputs, as stereo_node's second stage calls it) and
 (stereo_image_proc's layout, the baseline), the dense one (organized_cloud false) and voxel-thinned
 ones. The frame: the first raw EuRoC pair of test/data/euroc (752x480), matched with the default profile.
 
-    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/cloud_outputs.py [--repeat 30]
+    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/cloud_outputs.py [--repeat 30] [--markdown]
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import threading
 import time
 from pathlib import Path
@@ -30,6 +31,9 @@ from stereo_depth.messages import make_header
 from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import table_header, table_row, times
+
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 LAYOUTS = {
     "organized (default)": OutputOptions(),
@@ -42,6 +46,7 @@ LAYOUTS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     name = sorted((EUROC / "left").glob("*.png"))[0].name
@@ -65,7 +70,13 @@ def main() -> None:
     while publisher.get_subscription_count() < 1:
         time.sleep(0.05)
 
-    print(f"{'points2 layout':22s}{'points':>9s}{'MB':>8s}{'build ms':>10s}{'publish ms':>12s}{'total/organized':>17s}")
+    if args.markdown:
+        print(table_header(("points2 layout", "points", "MB", "build + publish ms", "vs organized")))
+    else:
+        print(
+            f"{'points2 layout':22s}{'points':>9s}{'MB':>8s}{'build ms':>10s}{'publish ms':>12s}"
+            f"{'total/organized':>17s}"
+        )
     baseline = None
     for label, options in LAYOUTS.items():
         state = OutputState()
@@ -85,6 +96,10 @@ def main() -> None:
         total = build_ms + publish_ms
         baseline = baseline or total
         points = cloud.width * cloud.height
+        if args.markdown:
+            cost = f"{build_ms:.1f} + {publish_ms:.1f}"
+            print(table_row((label, points, f"{len(cloud.data) / 1e6:.2f}", cost, times(total / baseline))), flush=True)
+            continue
         print(
             f"{label:22s}{points:9d}{len(cloud.data) / 1e6:8.2f}{build_ms:10.2f}{publish_ms:12.2f}"
             f"{total / baseline:17.2f}",

@@ -7,7 +7,7 @@ the bundled colour scene `artl`, both resized to 640x480), so the ratios compare
 table gives medians of both images' decode and of the whole frame (decode + rectify/match/filter/depth),
 each as a ratio to raw input measured in the same run, and the bytes on the wire per image.
 
-    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/compressed_input.py [--repeat 30]
+    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/compressed_input.py [--repeat 30] [--markdown]
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from markdown_table import table_header, table_row, times
 from pipeline_stages import scaled_info
 
 from stereo_depth.core.camera import StereoCamera
@@ -74,7 +75,9 @@ def timed(work: Callable[[], object]) -> float:
     return (time.perf_counter() - start) * 1000.0
 
 
-def measure(name: str, pair: tuple[np.ndarray, np.ndarray, StereoCamera], repeat: int) -> list[str]:
+def measure(
+    name: str, pair: tuple[np.ndarray, np.ndarray, StereoCamera], repeat: int, markdown: bool = False
+) -> list[str]:
     left, right, camera = pair
     inputs = {kind: (messages(left, kind), messages(right, kind)) for kind in KINDS}
     pipeline = StereoPipeline(make_params())
@@ -98,6 +101,10 @@ def measure(name: str, pair: tuple[np.ndarray, np.ndarray, StereoCamera], repeat
     for kind in KINDS:
         size = len(bytes(inputs[kind][0].data))
         d, f = statistics.median(decode[kind]), statistics.median(frame[kind])
+        if markdown:
+            cells = (name, kind, f"{size / 1024:.0f}", f"{d:.2f}", f"{f:.1f}", times(f / raw_frame))
+            rows.append(table_row(cells))
+            continue
         rows.append(
             f"{name:14s} {kind:5s} {size / 1024:10.0f} {d:10.2f} {d / raw_decode:9.1f}x {f:10.1f} {f / raw_frame:9.2f}x"
         )
@@ -107,13 +114,17 @@ def measure(name: str, pair: tuple[np.ndarray, np.ndarray, StereoCamera], repeat
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     print(f"VGA {VGA[0]}x{VGA[1]}, default profile, medians of {args.repeat} interleaved runs")
     columns = ("KiB/img", "decode ms", "vs raw", "frame ms", "vs raw")
-    print(f"{'frames':14s} {'input':5s} " + " ".join(f"{c:>10s}" for c in columns))
+    if args.markdown:
+        print(table_header(("frames", "input", "KiB per image", "decode ms (pair)", "frame ms", "frame vs raw")))
+    else:
+        print(f"{'frames':14s} {'input':5s} " + " ".join(f"{c:>10s}" for c in columns))
     for name, pair in (("euroc mono8", euroc_pair()), ("artl bgr8", colour_pair())):
-        for row in measure(name, pair, args.repeat):
+        for row in measure(name, pair, args.repeat, args.markdown):
             print(row)
 
 

@@ -1,6 +1,6 @@
 """Does the confidence mean something? bad-2 among confident pixels against bad-2 over all estimates.
 
-.venv/bin/python bench/confidence.py SCENE_DIR... [--profile quality] [--threshold 0.5]
+.venv/bin/python bench/confidence.py SCENE_DIR... [--profile quality] [--threshold 0.5] [--markdown]
 """
 
 from __future__ import annotations
@@ -22,9 +22,11 @@ def main() -> None:
     parser.add_argument("scenes", nargs="+", type=Path)
     parser.add_argument("--profile", default="quality")
     parser.add_argument("--threshold", type=float, default=0.5)
+    parser.add_argument("--markdown", action="store_true", help="the README's sentence only (no table per scene)")
     args = parser.parse_args()
     print_machine()
-    print(f"{'scene':36s}{'bad2_est':>10s}{'confident':>11s}{'share':>8s}")
+    if not args.markdown:
+        print(f"{'scene':36s}{'bad2_est':>10s}{'confident':>11s}{'share':>8s}")
     overall, confident, shares = [], [], []
     for folder in args.scenes:
         scene = load_scene(folder)
@@ -40,9 +42,11 @@ def main() -> None:
         overall.append(everything.bad2_est)
         confident.append(kept.bad2_est)
         shares.append(share)
-        print(f"{scene.name:36s}{everything.bad2_est:10.4f}{kept.bad2_est:11.4f}{share:8.2f}", flush=True)
+        if not args.markdown:
+            print(f"{scene.name:36s}{everything.bad2_est:10.4f}{kept.bad2_est:11.4f}{share:8.2f}", flush=True)
     mean_all, mean_sure = float(np.mean(overall)), float(np.mean(confident))
-    print(f"{'mean':36s}{mean_all:10.4f}{mean_sure:11.4f}{np.mean(shares):8.2f}")
+    if not args.markdown:
+        print(f"{'mean':36s}{mean_all:10.4f}{mean_sure:11.4f}{np.mean(shares):8.2f}")
     ratio = mean_sure / mean_all
     print(f"confidence >= {args.threshold}: bad-2 {mean_sure:.4f} = {ratio:.2f} x the overall {mean_all:.4f}")
 

@@ -10,7 +10,7 @@ threads. Ray runs twice: as it comes (workers at niceness 15) and with RAY_worke
 "in tasks" is frames over the summed seconds inside process_bag (the per-core rate that a cluster
 projection multiplies). Ray's overhead is the mean wall time of no-op tasks on a local instance.
 
-    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/fleet.py [--frames 150] [--profile default]
+    flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/fleet.py [--frames 150] [--profile default] [--markdown]
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import table_header, table_row, times
 from offline_process import write_bag
 
 from stereo_depth.machine import print_machine
@@ -85,26 +86,42 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=150, help="frames per bag")
     parser.add_argument("--profile", default="default")
     parser.add_argument("--size", default="640x480")
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     width, height = map(int, args.size.split("x"))
     print(f"{BAGS} bags x {args.frames} frames {args.size}, profile {args.profile}, {os.cpu_count()} cores")
-    print(f"{'mode':14s}{'wall s':>8s}{'frames/s':>10s}{'vs jobs 1':>11s}{'in tasks f/s/core':>19s}")
+    if args.markdown:
+        columns = ("mode", "wall s", "frames/s", "vs `--jobs 1`", "frames/s per core inside the tasks")
+        print(table_header(columns))
+    else:
+        print(f"{'mode':14s}{'wall s':>8s}{'frames/s':>10s}{'vs jobs 1':>11s}{'in tasks f/s/core':>19s}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         bags = [folder / f"bag{i}" for i in range(BAGS)]
         for bag in bags:
             write_bag(bag, width, height, args.frames)
         baseline = 0.0
+        walls, frame_ms = {}, 0.0  # frame_ms: one frame's work in a task, `--jobs 1`
         for name, (flags, extra_env) in MODES.items():
             out = folder / name.strip("-").replace(" ", "_")
             wall, totals = run_mode(bags, out, args.profile, flags, extra_env)
             rate = totals["frames"] / wall
             baseline = baseline or rate
             per_core = totals["frames"] / totals["task_seconds"]
+            walls[name], frame_ms = wall, frame_ms or 1000.0 / per_core
+            if args.markdown:
+                cells = (f"`{name}`", f"{wall:.1f}", f"{rate:.1f}", times(rate / baseline), f"{per_core:.1f}")
+                print(table_row(cells), flush=True)
+                continue
             print(f"{name:14s}{wall:8.2f}{rate:10.1f}{rate / baseline:10.2f}x{per_core:19.1f}", flush=True)
     started, per_task = ray_costs(500)
-    print(f"Ray: {started:.1f} s to start a local instance and its workers; {per_task:.2f} ms per no-op task")
+    start_share, task_share = started / walls["--ray"], per_task / frame_ms
+    print(
+        f"\nRay: {started:.1f} s to start a local instance and its workers ({times(start_share)} the `--ray` run's",
+        end="",
+    )
+    print(f" wall time); {per_task:.2f} ms per no-op task ({task_share:.3f}x one frame's work in a task)")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ the storage (read, pair, pipeline, every output message serialized-ready), in th
 that compares like for like with the bare loop. Runs alternate (ours, bare, ours, bare, ...) and the
 table gives the median of each and the ratio ours / bare.
 
-    .venv/bin/python bench/offline_process.py [--frames 150] [--repeats 3] [--profiles stereo_image_proc]
+    .venv/bin/python bench/offline_process.py [--frames 150] [--repeats 3] [--profiles stereo_image_proc] [--markdown]
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from stereo_depth.messages import array_to_image, camera_info_to_msg, make_heade
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import FRAME_ID, camera_infos, frames
+from markdown_table import table_header, table_row, times
 
 NAMESPACE = "/stereo"
 PERIOD_NS = 33_333_333
@@ -152,11 +153,15 @@ def main() -> None:
     parser.add_argument("--profiles", nargs="+", default=["stereo_image_proc", "default"])
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x720"])
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), metavar="V")
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {args.frames} frames, load {' '.join(load)}")
-    print(f"{'profile':18s}{'size':>10s}{'output':>30s}{'ours f/s':>10s}{'bare f/s':>10s}{'ratio':>7s}")
+    if args.markdown:
+        print(table_header(("profile", "size", "output", "frames/s", "bare loop frames/s", "vs bare loop")))
+    else:
+        print(f"{'profile':18s}{'size':>10s}{'output':>30s}{'ours f/s':>10s}{'bare f/s':>10s}{'ratio':>7s}")
     with tempfile.TemporaryDirectory(prefix="offline_bench_") as tmp:
         for size in args.sizes:
             width, height = (int(v) for v in size.split("x"))
@@ -174,6 +179,10 @@ def main() -> None:
                 bare_fps = statistics.median(theirs)
                 for output, values in mine.items():
                     fps = statistics.median(values)
+                    if args.markdown:
+                        cells = (profile, size, output, f"{fps:.1f}", f"{bare_fps:.1f}", times(fps / bare_fps))
+                        print(table_row(cells), flush=True)
+                        continue
                     row = f"{profile:18s}{size:>10s}{output:>30s}{fps:10.1f}{bare_fps:10.1f}{fps / bare_fps:7.2f}"
                     print(row, flush=True)
 

@@ -7,7 +7,7 @@ both cores busy. OpenCV SGBM's SGBM and HH modes aggregate on one core by themse
 runs them on two overlapping halves at once (StripSGBM, bit-identical output): the "OpenCV whole
 image" rows time the plain OpenCV call for comparison.
 
-    .venv/bin/python bench/parallel_matching.py [--size 640x480] [--frames 10]
+    .venv/bin/python bench/parallel_matching.py [--size 640x480] [--frames 10] [--markdown]
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from stereo_depth.machine import print_machine
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import frames
+from markdown_table import table_header, table_row, times
 
 SGBM = make_params("stereo_image_proc", {"stereo_algorithm": 1})
 HH = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": 1})
@@ -67,12 +68,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     width, height = (int(v) for v in args.size.split("x"))
     ((left, right),) = list(frames(width, height, 1))
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {width}x{height}, anchor frames")
-    print(f"{'matcher':38s} {'1 frame ms':>10s} {'2 at once ms':>12s} {'throughput':>10s}")
+    if args.markdown:
+        print(table_header(("matcher", "1 frame ms", "2 at once, ms per frame", "rate 2 / 1", "whole image / ours")))
+    else:
+        print(f"{'matcher':38s} {'1 frame ms':>10s} {'2 at once ms':>12s} {'throughput':>10s}")
+    ours_ms = 0.0
     for name, params, whole_image in SETTINGS:
         params = dataclasses.replace(params, disparity_range=64)
         matchers = [matcher_for(params, whole_image) for _ in range(2)]
@@ -80,7 +86,14 @@ def main() -> None:
             matcher.compute(left, right)  # warm-up (numba loads its cache here)
         one = seconds_per_frame(matchers[:1], left, right, args.frames)
         two = seconds_per_frame(matchers, left, right, args.frames)
-        print(f"{name:38s} {one * 1e3:10.1f} {two * 1e3:12.1f} {one / two:9.2f}x")
+        if args.markdown:  # whole-image rows: how much sooner our halves-at-once matcher (the row above) is
+            sooner = times(one * 1e3 / ours_ms) if whole_image else ""
+            print(
+                table_row((name.strip(), f"{one * 1e3:.1f}", f"{two * 1e3:.1f}", times(one / two), sooner)), flush=True
+            )
+        else:
+            print(f"{name:38s} {one * 1e3:10.1f} {two * 1e3:12.1f} {one / two:9.2f}x")
+        ours_ms = one * 1e3
 
 
 if __name__ == "__main__":

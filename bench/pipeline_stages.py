@@ -10,7 +10,7 @@ process, interleaved (profiles too, frame by frame), and the table gives medians
 pipeline alone / bare, everything the node does per frame (decode + pipeline + encode) / bare, and the
 match stage / the first profile's match stage (`--profiles default quality`: quality's time in SGBM's).
 
-    .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc]
+    .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc] [--markdown]
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -33,6 +34,9 @@ from stereo_depth.frames import disparity_message
 from stereo_depth.machine import print_machine
 from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
+
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import table_header, table_row, times
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 RESOLUTIONS = ((640, 480), (1280, 720))
@@ -96,20 +100,35 @@ def same_work(params: StereoParams) -> bool:
     return params.downsample == 1 and not params.fill_holes
 
 
+def markdown_row(profile: str, size: str, med: dict[str, float], bare: list[float], first_match: float) -> str:
+    """The README's row: without a bare equivalent (no bare runs) the bare columns say so."""
+    bare_cells = ("(no bare equivalent)", "")
+    if bare:
+        bare_ms = statistics.median(bare)
+        bare_cells = (f"{bare_ms:.1f}", times(med["node"] / bare_ms))
+    cells = (profile, size, f"{med['match']:.1f}", f"{med['pipeline']:.1f}", f"{med['node']:.1f}", *bare_cells)
+    return table_row((*cells, times(med["match"] / first_match)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)
     parser.add_argument("--profiles", nargs="+", default=["default", "fast", "stereo_image_proc"])
     parser.add_argument("--disparity-range", type=int, default=64)
+    parser.add_argument("--markdown", action="store_true", help="the README's table")
     args = parser.parse_args()
     print_machine()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
-    header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>8s}" for s in COLUMNS)
-    print(
-        header
-        + f"{'pipeline':>9s}{'node':>8s}{'bare cv':>8s}{'pipe/bare':>10s}{'node/bare':>10s}"
-        + f"  match/{args.profiles[0]}"
-    )
+    if args.markdown:
+        columns = ("profile", "size", "match ms", "pipeline ms", "node ms", "bare OpenCV ms", "node / bare")
+        print(table_header((*columns, f"match / {args.profiles[0]}")))
+    else:
+        header = f"{'profile':18s}{'size':>10s}" + "".join(f"{s:>8s}" for s in COLUMNS)
+        print(
+            header
+            + f"{'pipeline':>9s}{'node':>8s}{'bare cv':>8s}{'pipe/bare':>10s}{'node/bare':>10s}"
+            + f"  match/{args.profiles[0]}"
+        )
     for width, height in RESOLUTIONS:
         left, right, camera = load_pair(width, height)
         header_msg = make_header(RCLPY_TYPES, 1, "left")
@@ -128,6 +147,9 @@ def main() -> None:
         first = statistics.median(r["match"] for r in runs[args.profiles[0]][2:])
         for profile in args.profiles:
             med = {k: statistics.median(r[k] for r in runs[profile][2:]) for k in runs[profile][0]}
+            if args.markdown:
+                print(markdown_row(profile, f"{width}x{height}", med, bare[profile][2:], first), flush=True)
+                continue
             row = f"{profile:18s}{f'{width}x{height}':>10s}" + "".join(f"{med[c]:8.1f}" for c in COLUMNS)
             row += f"{med['pipeline']:9.1f}{med['node']:8.1f}"
             if same_work(params[profile]):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import platform
+import time
 from importlib import metadata
 from pathlib import Path
 
@@ -95,6 +96,15 @@ def machine_lines() -> list[str]:
         f"OpenCV SIMD: {opencv_simd()}; threads {cv2.getNumThreads()}",
         f"versions: {versions()}",
     ]
+
+
+def measured_on() -> str:
+    """The one line the README puts above each speed table: CPU, cores, both SIMD levels, the date."""
+    opencv_levels = [level.strip("*") for level in cv2.getCPUFeaturesLine().split() if not level.endswith("?")]
+    widest = opencv_levels[-1] if opencv_levels else "none"
+    numba_level = numba_simd().split(";")[0]
+    day = time.strftime("%Y-%m-%d")
+    return f"Measured on: {cpu_model()}, {cores()} cores; numba {numba_level}, OpenCV up to {widest}; {day}."
 
 
 def print_machine() -> None:

@@ -1,0 +1,26 @@
+"""The README's table layout: a bench run with --markdown prints its figures as the rows of a GitHub
+markdown table, so `make bench-readme` output pastes into README.md as it is."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+def table_row(cells: Iterable[object]) -> str:
+    return "| " + " | ".join(str(cell) for cell in cells) + " |"
+
+
+def table_header(columns: Iterable[str]) -> str:
+    """After an empty line: a table must not continue a caption's paragraph."""
+    names = list(columns)
+    return "\n" + table_row(names) + "\n|" + "|".join("---" for _ in names) + "|"
+
+
+def times(ratio: float) -> str:
+    """A ratio against the baseline measured in the same run, as the README writes it."""
+    return f"{ratio:.2f}x"
+
+
+def ratio(value: float, baseline: float) -> float:
+    """value / baseline; NaN where the baseline is 0 (a run that delivered nothing)."""
+    return value / baseline if baseline else float("nan")
