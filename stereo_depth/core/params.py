@@ -56,7 +56,15 @@ class StereoParams:
     )
     speckle_range: int = field(default=2, metadata=_spec("Largest disparity step inside one blob, pixels", 0, 31, 1))
     disp12_max_diff: int = field(
-        default=1, metadata=_spec("SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
+        default=1,
+        metadata=_spec(
+            "Left-right check tolerance, pixels, every matcher: -1 = check off, N >= 1 = N px; 0 = what "
+            "stereo_image_proc gives (bm: off, as it never passes it to BM; sgbm: 1 px, OpenCV's least; "
+            "census_sgm: 0 px)",
+            -1,
+            128,
+            1,
+        ),
     )
     P1: float = field(
         default=200.0,
