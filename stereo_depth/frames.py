@@ -25,7 +25,7 @@ from typing import Any, NamedTuple, TypeVar
 import cv2
 import numpy as np
 
-from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.camera import StereoCamera, rectified_input, with_baseline
 from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams, _spec, coerce
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
@@ -107,6 +107,19 @@ class OutputOptions:
         default=0.0,
         metadata=_spec("Publish points2 at most this often, Hz, judged by stamps (0 = every frame)", 0.0, 1000.0),
     )
+    baseline: float = field(
+        default=0.0,
+        metadata=_spec(
+            "Stereo baseline, metres, for drivers whose right camera_info has P[0,3] zero or of the wrong sign: "
+            "it replaces P[0,3] by -fx * baseline (0 = use the camera_info)",
+            0.0,
+            100.0,
+        ),
+    )
+    swap_left_right: bool = field(
+        default=False,
+        metadata=_spec("The driver's left topics carry the right camera and the right ones the left: swap them"),
+    )
 
     def validate(self) -> OutputOptions:
         for f in dataclasses.fields(self):
@@ -177,10 +190,25 @@ def decode_image(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
     return image_to_pipeline(msg, max_pixels)
 
 
-def frame_camera(pipeline: StereoPipeline, left_info: Any, right_info: Any, names: tuple[str, str]) -> StereoCamera:
-    """The pipeline's cached StereoCamera for two camera_info messages; errors name both."""
+def frame_camera(
+    pipeline: StereoPipeline,
+    left_info: Any,
+    right_info: Any,
+    names: tuple[str, str],
+    *,
+    rectified: bool,
+    baseline: float = 0.0,
+) -> StereoCamera:
+    """The pipeline's cached StereoCamera for two camera_info messages; errors name both.
+
+    `rectified`: the images are rectified already, so a camera_info with only P set will do;
+    `baseline` (metres, 0 = as published) replaces the right P[0,3] the driver got wrong."""
     left = named(names[0], camera_info_from_msg, left_info)
     right = named(names[1], camera_info_from_msg, right_info)
+    if rectified:
+        left, right = rectified_input(left), rectified_input(right)
+    if baseline > 0:
+        right = with_baseline(right, baseline)
     try:
         return pipeline.camera_for(left, right)
     except StereoDepthError as exc:
@@ -197,10 +225,14 @@ def decode_frame(
 ) -> StereoFrame:
     """(left image, left info, right image, right info) -> StereoFrame; `names` (the topics) name the
     input each error is about, so a user knows which driver to fix."""
+    if options.swap_left_right:
+        messages, names = swapped(messages), swapped(names)
     left_msg, left_info, right_msg, right_info = messages
     left = named(names[0], decode_image, left_msg, options.max_image_pixels)
     right = named(names[2], decode_image, right_msg, options.max_image_pixels)
-    camera = frame_camera(pipeline, left_info, right_info, (names[1], names[3]))
+    camera = frame_camera(
+        pipeline, left_info, right_info, (names[1], names[3]), rectified=rectified, baseline=options.baseline
+    )
     (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
     if (lh, lw) != (rh, rw):
         msg = (
@@ -216,6 +248,22 @@ def decode_frame(
         raise CalibrationError(msg)
     header = left_msg.header
     return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
+
+
+def swapped(inputs: Sequence[T]) -> tuple[T, ...]:
+    """(left image, left info, right image, right info) read the other way round (swap_left_right)."""
+    left_image, left_info, right_image, right_info = inputs
+    return right_image, right_info, left_image, left_info
+
+
+def camera_fixes(options: OutputOptions) -> str | None:
+    """The line a node or `process` logs once at start when the user corrects the driver's inputs."""
+    fixes = []
+    if options.baseline > 0:
+        fixes.append(f"baseline {options.baseline} m replaces the right camera_info's P[0,3]")
+    if options.swap_left_right:
+        fixes.append("swap_left_right: the left topics are read as the right camera and the right ones as the left")
+    return "; ".join(fixes) if fixes else None
 
 
 def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: Sequence[str] = INPUT_NAMES) -> StereoResult:

@@ -139,6 +139,8 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
+# what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)
+DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
 STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 

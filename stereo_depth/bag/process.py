@@ -71,6 +71,7 @@ class ProcessSummary:
     read: ReadStats = field(default_factory=ReadStats)
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # each once: what held for frames that still came out
 
     @property
     def frames_per_second(self) -> float:
@@ -106,6 +107,7 @@ class ProcessSummary:
                 "(try --approximate-sync, or a larger --queue-size)"
             )
         out.extend(f"  skipped {n}x: {reason}" for reason, n in self.skipped.most_common())
+        out.extend(f"  warning: {text}" for text in self.warnings)
         timings = ", ".join(f"{k} {v:.1f}" for k, v in self.mean_stage_ms().items())
         out.append(f"mean per-stage time, ms: {timings}")
         return out
@@ -131,6 +133,8 @@ def frame_outputs(
     """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
     the geometry they were built from (None when no depth output or PLY was asked for)."""
     messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
+    if frame.camera.no_depth_reason is not None:  # disparity only, as stereo_node (ProcessSummary.warnings)
+        return messages, None
     wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
     wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
     if not wanted and options.ply_dir is None:
@@ -227,6 +231,9 @@ def process_bag(
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
+            reason = decoded.camera.no_depth_reason
+            if reason is not None and reason not in summary.warnings:
+                summary.warnings.append(reason)
             for name, message in messages.items():
                 writer.write(topics.output(name), message, frame.stamp_ns)
                 if topics.output(name) not in summary.topics:

@@ -17,7 +17,7 @@ from stereo_depth.commands.common import add_param_options, add_topic_options, t
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
-from stereo_depth.frames import OUTPUTS, OutputOptions, make_output_options, output_option_names
+from stereo_depth.frames import OUTPUTS, OutputOptions, camera_fixes, make_output_options, output_option_names
 from stereo_depth.settings import unknown_parameters_line
 
 
@@ -196,6 +196,9 @@ def run(args: argparse.Namespace) -> int:
     params = params_from(args)
     warn_unknown_file_keys(args)
     options = options_from(args)
+    fixes = camera_fixes(options.output)
+    if fixes is not None:
+        print(f"inputs corrected: {fixes}", file=sys.stderr)
     interrupt_on_sigterm()
     if args.out_dir is not None:
         return run_many(args, params, options)

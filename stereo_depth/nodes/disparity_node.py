@@ -12,6 +12,7 @@ from stereo_depth.frames import image_outputs
 from stereo_depth.ros.parameters import INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.settings import DRIVER_FIX_OPTIONS
 
 
 class DisparityNode(StereoIONode):
@@ -22,7 +23,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = ((1, 0), (3, 2))
-    OPTIONS = INPUT_OPTIONS
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS)
     WITH_STEREO = True
 
     def __init__(self) -> None:

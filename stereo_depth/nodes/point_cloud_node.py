@@ -31,7 +31,7 @@ class PointCloudNode(StereoIONode):
         ("disparity", DisparityImage),
     )
     CALIBRATIONS = ((1, 0), (2, 3))  # the disparity carries the left image's stamp
-    OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS)
+    OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS, "baseline")
 
     def __init__(self) -> None:
         super().__init__("point_cloud_node")
@@ -44,9 +44,12 @@ class PointCloudNode(StereoIONode):
         image_msg, left_info, right_info, disparity_msg = messages
         start = time.perf_counter()
         image = self.read_image(0, image_msg, settings)
-        camera = self.stereo_camera(1, left_info, 2, right_info)
+        camera = self.stereo_camera(1, left_info, 2, right_info, settings)
         disparity = self.read_input(3, disparity_from_msg, disparity_msg)
         self._check_sizes(image.shape[:2], disparity.shape, camera)
+        if camera.no_depth_reason is not None:
+            self.problems.warn_once(camera.no_depth_reason)
+            return {}
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         stamp_ns = stamp_to_ns(image_msg.header.stamp)

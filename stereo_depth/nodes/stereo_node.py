@@ -39,7 +39,7 @@ from stereo_depth.frames import (
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.settings import CAMERA_OPTIONS
+from stereo_depth.settings import CAMERA_OPTIONS, DRIVER_FIX_OPTIONS
 
 OUTPUT_TYPES = {
     "left/image_rect": Image,
@@ -75,6 +75,7 @@ class StereoNode(StereoIONode):
     OPTIONS = (
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,
+        *DRIVER_FIX_OPTIONS,
         *CLOUD_OPTIONS,
         "depth_encoding",
         "publish_rectified",
@@ -114,6 +115,9 @@ class StereoNode(StereoIONode):
             wanted = self._wanted(IMAGE_OUTPUTS, options)
             self._publish(image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, wanted), stages)
             self._maybe_check_calibration(frame.stamp_ns, result, options)
+            if frame.camera.no_depth_reason is not None:
+                self.problems.warn_once(frame.camera.no_depth_reason)
+                return {**result.timings_ms, **stages}
             wanted = self._state.cloud_rate.wanted(
                 self._wanted(GEOMETRY_OUTPUTS, options), frame.stamp_ns, settings.output
             )

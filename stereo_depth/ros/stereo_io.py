@@ -35,7 +35,15 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
-from stereo_depth.frames import StereoFrame, decode_frame, decode_image, frame_camera, match_frame, named
+from stereo_depth.frames import (
+    StereoFrame,
+    camera_fixes,
+    decode_frame,
+    decode_image,
+    frame_camera,
+    match_frame,
+    named,
+)
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeOptions, NodeParameters, Settings
@@ -168,6 +176,9 @@ class StereoIONode(Node):
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
         self.create_timer(1.0, self._flush_when_idle)
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
+        fixes = camera_fixes(settings.output)
+        if fixes is not None:
+            self.get_logger().info(f"inputs corrected: {fixes}")
         self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
 
     # ------------------------------------------------------------ to implement / use in subclasses
@@ -209,12 +220,17 @@ class StereoIONode(Node):
     def read_image(self, index: int, msg: Any, settings: Settings) -> Any:
         return named(self.topics[index], decode_image, msg, settings.output.max_image_pixels)
 
-    def stereo_camera(self, left_index: int, left_msg: Any, right_index: int, right_msg: Any) -> StereoCamera:
-        """The cached StereoCamera; calibration errors name both camera_info topics."""
+    def stereo_camera(
+        self, left_index: int, left_msg: Any, right_index: int, right_msg: Any, settings: Settings
+    ) -> StereoCamera:
+        """The cached StereoCamera of a rectified input's two camera_infos (only P needed; `baseline`
+        applied); calibration errors name both topics."""
         assert self.pipeline is not None
         loaded = self.pipeline.calibrations_built
         names = (self.topics[left_index], self.topics[right_index])
-        camera = frame_camera(self.pipeline, left_msg, right_msg, names)
+        camera = frame_camera(
+            self.pipeline, left_msg, right_msg, names, rectified=True, baseline=settings.output.baseline
+        )
         self._note_calibration(loaded, camera, names)
         return camera
 
