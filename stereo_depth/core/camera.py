@@ -191,10 +191,15 @@ class StereoCamera:
         fixtures publish), or None when Z = f * B / d is defined."""
         if self.baseline != 0:
             return None
+        fix = (
+            "publish the stereo calibration's right P (P[0,3] = -fx * baseline), or set the baseline parameter (metres)"
+        )
+        if self.left.p[0, 3] != 0:  # the left P holds the offset: it is the right camera's
+            fix = f"the left camera_info has P[0,3]={self.left.p[0, 3]}: left and right look swapped, set "
+            fix += "swap_left_right"
         return (
             f"right camera_info: P[0,3]={self.right.p[0, 3]} gives baseline 0 m: disparity is published, but "
-            "depth and points2 are not (Z = f * baseline / d); publish the stereo calibration's right P "
-            "(P[0,3] = -fx * baseline), or set the baseline parameter (metres)"
+            f"depth and points2 are not (Z = f * baseline / d); {fix}"
         )
 
     @property
