@@ -61,7 +61,8 @@ INPUT_NAMES = ("left image", "left camera_info", "right image", "right camera_in
 
 @dataclass(frozen=True)
 class OutputOptions:
-    """How outputs are built, live and offline alike (ROS parameters of the nodes, `process --set`)."""
+    """How inputs are read and outputs built, live and offline alike (ROS parameters of the nodes,
+    `process --set`)."""
 
     use_color: bool = field(default=True, metadata=_spec("Add PCL-style packed rgb to points2"))
     avoid_point_cloud_padding: bool = field(

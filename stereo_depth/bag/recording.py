@@ -107,8 +107,9 @@ def ros1_to_jazzy(source_store: Typestore, msgtype: str) -> Callable[[bytes | me
     return partial(migrate_bytes, source_store, jazzy, msgtype, msgtype, {}, src_is2=False, dst_is2=True)
 
 
-def open_reader(path: Path) -> Recording:
-    """A Recording, or a BagError that says what to pass instead."""
+def open_reader(path: Path, *, allow_empty: bool = False) -> Recording:
+    """A Recording, or a BagError that says what to pass instead. `allow_empty`: a bag without messages
+    is fine (a shard that owned no frame), not an error."""
     if path.is_file() and path.suffix in (".mcap", ".db3"):
         msg = f"{path} is a storage file; pass its bag folder (the one with metadata.yaml): {path.parent}"
         raise BagError(msg)
@@ -139,7 +140,7 @@ def open_reader(path: Path) -> Recording:
                 "recover or ros2 bag reindex)"
             )
         raise BagError(msg) from exc
-    if recording.message_count == 0:
+    if recording.message_count == 0 and not allow_empty:
         topics = ", ".join(sorted({c.topic for c in recording.connections})) or "no topics"
         recording.close()
         msg = f"{path} holds no messages ({topics}); record again, with the cameras publishing"
