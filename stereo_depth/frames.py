@@ -27,7 +27,7 @@ from typing import Any, NamedTuple, TypeVar
 import cv2
 import numpy as np
 
-from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.camera import StereoCamera, rectified_input, with_baseline
 from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
@@ -107,10 +107,25 @@ def decode_image(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
     return image_to_pipeline(msg, max_pixels)
 
 
-def frame_camera(pipeline: StereoPipeline, left_info: Any, right_info: Any, names: tuple[str, str]) -> StereoCamera:
-    """The pipeline's cached StereoCamera for two camera_info messages; errors name both."""
+def frame_camera(
+    pipeline: StereoPipeline,
+    left_info: Any,
+    right_info: Any,
+    names: tuple[str, str],
+    *,
+    rectified: bool,
+    baseline: float = 0.0,
+) -> StereoCamera:
+    """The pipeline's cached StereoCamera for two camera_info messages; errors name both.
+
+    `rectified`: the images are rectified already, so a camera_info with only P set will do;
+    `baseline` (metres, 0 = as published) replaces the right P[0,3] the driver got wrong."""
     left = named(names[0], camera_info_from_msg, left_info)
     right = named(names[1], camera_info_from_msg, right_info)
+    if rectified:
+        left, right = rectified_input(left), rectified_input(right)
+    if baseline > 0:
+        right = with_baseline(right, baseline)
     try:
         return pipeline.camera_for(left, right)
     except StereoDepthError as exc:
@@ -127,6 +142,8 @@ def decode_frame(
 ) -> StereoFrame:
     """A matched set's images and calibration, sizes checked; `names` (the topics) name the input each
     error is about, so a user knows which driver to fix."""
+    if options.swap_left_right:
+        inputs, names = swapped(inputs), swapped(names)
     left = named(names.left_image, decode_image, inputs.left_image, options.max_image_pixels)
     (lh, lw), images, right = left.shape[:2], f"{names.left_image} is", None
     if inputs.right_image is not None:
@@ -139,7 +156,14 @@ def decode_frame(
             )
             raise ImageError(msg)
         images = f"{names.left_image} and {names.right_image} are"
-    camera = frame_camera(pipeline, inputs.left_info, inputs.right_info, (names.left_info, names.right_info))
+    camera = frame_camera(
+        pipeline,
+        inputs.left_info,
+        inputs.right_info,
+        (names.left_info, names.right_info),
+        rectified=rectified,
+        baseline=options.baseline,
+    )
     if (lw, lh) != (camera.width, camera.height):
         msg = (
             f"{images} {lw}x{lh} but {names.left_info} and {names.right_info} "
@@ -148,6 +172,32 @@ def decode_frame(
         raise CalibrationError(msg)
     header = inputs.left_image.header
     return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
+
+
+SwappableT = TypeVar("SwappableT", StereoSet, InputNames)
+
+
+def swapped(inputs: SwappableT) -> SwappableT:
+    """A stereo set, or its names, read the other way round (swap_left_right)."""
+    other = {
+        "left_image": inputs.right_image,
+        "left_info": inputs.right_info,
+        "right_image": inputs.left_image,
+        "right_info": inputs.left_info,
+    }
+    if isinstance(inputs, InputNames):
+        return inputs._replace(**other)
+    return dataclasses.replace(inputs, **other)
+
+
+def camera_fixes(options: OutputOptions) -> str | None:
+    """The line a node or `process` logs once at start when the user corrects the driver's inputs."""
+    fixes = []
+    if options.baseline > 0:
+        fixes.append(f"baseline {options.baseline} m replaces the right camera_info's P[0,3]")
+    if options.swap_left_right:
+        fixes.append("swap_left_right: the left topics are read as the right camera and the right ones as the left")
+    return "; ".join(fixes) if fixes else None
 
 
 def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: InputNames = INPUT_NAMES) -> StereoResult:
@@ -453,6 +503,9 @@ def frame_outputs(
     needs): `send_cloud({}, None)` at once.
     """
     send_images(image_outputs(types, frame.header, result, params, wanted))
+    if frame.camera.no_depth_reason is not None:  # no baseline: disparity only (the caller warns once)
+        send_cloud({}, None)
+        return
     due = state.cloud_rate.wanted([name for name in GEOMETRY_OUTPUTS if name in wanted], frame.stamp_ns, output)
     if not due and not with_geometry:
         send_cloud({}, None)

@@ -121,9 +121,10 @@ def _floats(types: MessageTypes, values: np.ndarray) -> Any:
 # ---------------------------------------------------------------- images
 
 
-def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
-    """A view of the image's pixels, (H, W) or (H, W, C), in native byte order; row padding dropped."""
-    encoding = str(msg.encoding)
+def image_to_array(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS, encoding: str | None = None) -> np.ndarray:
+    """A view of the image's pixels, (H, W) or (H, W, C), in native byte order; row padding dropped.
+    `encoding`: read the pixels as this instead of the message's own encoding."""
+    encoding = encoding or str(msg.encoding)
     if encoding not in ENCODINGS:
         raise _unsupported(encoding)
     dtype_code, channels, _ = ENCODINGS[encoding]
@@ -421,8 +422,22 @@ def disparity_to_msg(
 
 
 def disparity_from_msg(msg: Any) -> np.ndarray:
-    """The offset-adjusted disparity (Z = f * t / d) as float32 with NaN for invalid pixels."""
-    image = image_to_array(msg.image).astype(np.float32, copy=True)
+    """The offset-adjusted disparity (Z = f * t / d) as float32 with NaN for invalid pixels.
+
+    An image with no encoding is read as 32FC1, what DisparityImage documents, when its step and size
+    fit (stereo_image_proc reads it as float whatever the encoding says; its own test fixture sets none)."""
+    encoding = str(msg.image.encoding)
+    if encoding and encoding not in ENCODINGS:
+        text = f"disparity image encoding '{encoding}' is not supported; a DisparityImage holds 32FC1 (float pixels)"
+        raise ImageError(text)
+    try:
+        pixels = image_to_array(msg.image, encoding=encoding or "32FC1")
+    except ImageError as exc:
+        if encoding:
+            raise
+        text = f"disparity image has an empty encoding and does not fit 32FC1 ({exc}); publish it as 32FC1"
+        raise ImageError(text) from exc
+    image = pixels.astype(np.float32, copy=True)
     image[~(image >= msg.min_disparity)] = np.nan
     return image
 

@@ -64,6 +64,16 @@ class OutputOptions:
         0.0,
         1000.0,
     )
+    baseline: float = option(
+        0.0,
+        "Stereo baseline, metres, for drivers whose right camera_info has P[0,3] zero or of the wrong sign: "
+        "it replaces P[0,3] by -fx * baseline (0 = use the camera_info)",
+        0.0,
+        100.0,
+    )
+    swap_left_right: bool = option(
+        False, "The driver's left topics carry the right camera and the right ones the left: swap them"
+    )
     clearing_max_depth: float = option(
         10.0,
         "points2_clearing: each point lies along its pixel's ray at its depth, but no farther than this, "
@@ -212,6 +222,8 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
+# what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)
+DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
 STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 

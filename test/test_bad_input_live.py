@@ -226,11 +226,6 @@ def test_unusable_camera_info(node: FaultyNode, index: int, field: str, value: A
     node.refuses(messages, reason, f"{NS}/left/camera_info", f"{NS}/right/camera_info")
 
 
-def test_zero_baseline(node: FaultyNode) -> None:
-    p = p_with(node.scene.infos[1], 0, 3, 0.0)
-    node.refuses(bad(node.scene, set_info(RIGHT_INFO, p=p)), "P[0,3]=0.0 gives baseline", "stereo calibration missing")
-
-
 def test_right_camera_on_the_left(node: FaultyNode) -> None:
     right = node.scene.infos[1]
     p = p_with(right, 0, 3, -right.p[0, 3])

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.camera import CameraInfo, StereoCamera, rectified_input
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import CalibrationError
 from stereo_depth.formats.euroc import stereo_camera_infos
@@ -147,16 +147,43 @@ def good_pair() -> tuple[CameraInfo, CameraInfo]:
         (lambda lf, r: (lf, dataclasses.replace(r, p=np.zeros((3, 4)))), "uncalibrated"),
         (lambda lf, r: (dataclasses.replace(lf, d=np.array([np.nan, 0, 0, 0, 0])), r), "NaN"),
         (lambda lf, r: (lf, dataclasses.replace(r, width=r.width + 2)), "same resolution"),
-        (lambda lf, r: (lf, dataclasses.replace(r, p=np.hstack([r.p[:, :3], np.zeros((3, 1))]))), "baseline"),
         (lambda lf, r: (lf, dataclasses.replace(r, p=r.p * np.array([1, 1, 1, -1]))), "swapped"),
         (lambda lf, r: (dataclasses.replace(lf, distortion_model="fancy", d=np.ones(5)), r), "unknown distortion"),
     ],
-    ids=["zero K", "zero P", "NaN", "size mismatch", "zero baseline", "right on the left", "unknown model"],
+    ids=["zero K", "zero P", "NaN", "size mismatch", "right on the left", "unknown model"],
 )
 def test_unusable_calibrations_are_refused_with_the_reason(change, message: str) -> None:  # type: ignore[no-untyped-def]
     left, right = change(*good_pair())
     with pytest.raises(CalibrationError, match=message):
         StereoCamera(left, right)
+
+
+def test_zero_baseline_gives_a_camera_for_disparity_but_no_depth() -> None:
+    """stereo_image_proc publishes disparity without a baseline (its own test fixtures have none): the
+    pair is usable for matching; depth is refused with the reason and the fix."""
+    left, right = good_pair()
+    camera = StereoCamera(left, dataclasses.replace(right, p=np.hstack([right.p[:, :3], np.zeros((3, 1))])))
+    assert camera.baseline == 0 and camera.no_depth_reason is not None
+    assert "disparity is published" in camera.no_depth_reason and "baseline parameter" in camera.no_depth_reason
+    with pytest.raises(CalibrationError, match="baseline 0 m"):
+        disparity_to_depth(np.full((camera.height, camera.width), 10.0, np.float32), camera)
+    assert StereoCamera(*good_pair()).no_depth_reason is None
+
+
+def test_rectified_input_needs_only_p() -> None:
+    """A rectified image's camera_info with only P (K = 0, D and R empty), as stereo_image_proc's test
+    fixtures publish: the camera is P's, and no remapping is done."""
+    left, right = good_pair()
+    bare_left, bare_right = (
+        CameraInfo.from_values(info.width, info.height, np.zeros(9), [], np.zeros(9), info.p, "")
+        for info in (left, right)
+    )
+    with pytest.raises(CalibrationError, match="K has no focal length"):
+        StereoCamera(bare_left, bare_right)
+    camera = StereoCamera(rectified_input(bare_left), rectified_input(bare_right))
+    assert (camera.fx, camera.baseline) == (StereoCamera(left, right).fx, StereoCamera(left, right).baseline)
+    assert not camera.needs_rectification("left") and not camera.needs_rectification("right")
+    assert rectified_input(left) is left  # a full camera_info keeps its K, D and R
 
 
 def test_image_of_another_size_than_its_calibration_is_refused(euroc_camera: StereoCamera) -> None:

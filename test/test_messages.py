@@ -148,6 +148,23 @@ def test_disparity_message_is_offset_adjusted_like_stereo_image_proc(camera: Ste
     assert msg.f * msg.t / back[0, 0] == pytest.approx(0.160 * 935.0 / (20.0 + 50.0))  # type: ignore[attr-defined]
 
 
+def test_disparity_without_encoding_reads_as_32fc1_when_it_fits(camera: StereoCamera) -> None:
+    """stereo_image_proc reads a DisparityImage as float whatever its encoding; its point cloud test fixture
+    sets none. Bytes that fit 4-byte pixels read as 32FC1; others are refused with the fix, never guessed."""
+    disparity = np.array([[20.0, np.nan], [30.5, 16.0]], np.float32)
+    msg = disparity_to_msg(T, HEADER, disparity, camera, 16, 64, (0, 0, 2, 2))
+    expected = disparity_from_msg(msg)
+    msg.image.encoding = ""
+    np.testing.assert_array_equal(disparity_from_msg(msg), expected)
+    # upstream's fixture: float64 pixels under a float32 step (2x the data that step x height says)
+    msg.image.data = np.nan_to_num(disparity).astype(np.float64).tobytes()
+    with pytest.raises(ImageError, match=r"empty encoding and does not fit 32FC1.*publish it as 32FC1"):
+        disparity_from_msg(msg)
+    msg.image.encoding = "rgb9"
+    with pytest.raises(ImageError, match="a DisparityImage holds 32FC1"):
+        disparity_from_msg(msg)
+
+
 @pytest.mark.parametrize(("avoid_padding", "offsets", "step"), [(False, [0, 4, 8, 16], 32), (True, [0, 4, 8, 12], 16)])
 def test_cloud_layout_matches_stereo_image_proc(
     camera: StereoCamera, avoid_padding: bool, offsets: list[int], step: int

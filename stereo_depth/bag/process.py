@@ -60,6 +60,7 @@ class ProcessSummary:
     read: ReadStats = field(default_factory=ReadStats)
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # each once: what held for frames that still came out
 
     @property
     def frames_per_second(self) -> float:
@@ -95,6 +96,7 @@ class ProcessSummary:
                 "(try --approximate-sync, or a larger --queue-size)"
             )
         out.extend(f"  skipped {n}x: {reason}" for reason, n in self.skipped.most_common())
+        out.extend(f"  warning: {text}" for text in self.warnings)
         timings = ", ".join(f"{k} {v:.1f}" for k, v in self.mean_stage_ms().items())
         out.append(f"mean per-stage time, ms: {timings}")
         return out
@@ -216,6 +218,9 @@ def process_bag(
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
+            reason = frame.camera.no_depth_reason
+            if reason is not None and reason not in summary.warnings:
+                summary.warnings.append(reason)
             for name, message in out.messages.items():
                 writer.write(topics.output(name), message, inputs.stamp_ns)
                 if topics.output(name) not in summary.topics:

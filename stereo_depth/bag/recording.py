@@ -24,7 +24,17 @@ from stereo_depth.bag.types import typestore
 from stereo_depth.errors import BagError
 
 RawMessage = tuple[Connection, int, bytes | memoryview]  # connection, bag time (ns), Jazzy CDR
-ROS1_SUFFIX = ".bag"
+ROS1_MAGIC = b"#ROSBAG V2.0"  # the first bytes of every ROS 1 bag file
+ROS2_METADATA = "metadata.yaml"
+
+
+def is_ros1_bag(path: Path) -> bool:
+    """A bag is told by its content, not its name: a file that starts as ROS 1 bags do is one (a
+    rosbag2 is a folder, whatever it is called: `ros2 bag record -o run.bag` makes a folder `run.bag/`)."""
+    if not path.is_file():
+        return False
+    with path.open("rb") as file:
+        return file.read(len(ROS1_MAGIC)) == ROS1_MAGIC
 
 
 class Recording:
@@ -32,7 +42,7 @@ class Recording:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.is_ros1 = path.suffix == ROS1_SUFFIX
+        self.is_ros1 = is_ros1_bag(path)
         self._ros1: AnyReader | None = None
         self._ros2: Reader | None = None
         self._to_cdr: dict[str, Callable[[bytes | memoryview], bytes | memoryview]] = {}
@@ -48,6 +58,10 @@ class Recording:
         reader = self._ros1 or self._ros2
         assert reader is not None
         return list(reader.connections)
+
+    @property
+    def message_count(self) -> int:
+        return sum(c.msgcount for c in self.connections)
 
     @property
     def time_span(self) -> tuple[int, int]:
@@ -93,18 +107,31 @@ def ros1_to_jazzy(source_store: Typestore, msgtype: str) -> Callable[[bytes | me
     return partial(migrate_bytes, source_store, jazzy, msgtype, msgtype, {}, src_is2=False, dst_is2=True)
 
 
-def open_reader(path: Path) -> Recording:
-    """A Recording, or a BagError that says what to pass instead."""
+def open_reader(path: Path, *, allow_empty: bool = False) -> Recording:
+    """A Recording, or a BagError that says what to pass instead. `allow_empty`: a bag without messages
+    is fine (a shard that owned no frame), not an error."""
     if path.is_file() and path.suffix in (".mcap", ".db3"):
         msg = f"{path} is a storage file; pass its bag folder (the one with metadata.yaml): {path.parent}"
         raise BagError(msg)
     if not path.exists():
         msg = f"{path} does not exist; pass a rosbag2 folder (with metadata.yaml) or a ROS 1 .bag file"
         raise BagError(msg)
+    if path.is_file() and not is_ros1_bag(path):
+        msg = (
+            f"{path} is a file but not a ROS 1 bag (it does not start with {ROS1_MAGIC.decode()}); pass a ROS 1 "
+            "bag file or a rosbag2 folder (with metadata.yaml)"
+        )
+        raise BagError(msg)
+    if path.is_dir() and not (path / ROS2_METADATA).is_file():
+        msg = (
+            f"{path} is a folder without {ROS2_METADATA}, so not a rosbag2; pass the folder made by ros2 bag record "
+            "or stereo-depth make-bag (a recording cut short may get its metadata.yaml back with ros2 bag reindex)"
+        )
+        raise BagError(msg)
     try:
-        return Recording(path)
+        recording = Recording(path)
     except (ReaderError, Ros1ReaderError, AnyReaderError, OSError) as exc:
-        if path.suffix == ROS1_SUFFIX:
+        if path.is_file():
             msg = f"{path}: not a readable ROS 1 bag ({exc}); a recording cut short may be repaired with rosbag reindex"
         else:
             msg = (
@@ -113,3 +140,9 @@ def open_reader(path: Path) -> Recording:
                 "recover or ros2 bag reindex)"
             )
         raise BagError(msg) from exc
+    if recording.message_count == 0 and not allow_empty:
+        topics = ", ".join(sorted({c.topic for c in recording.connections})) or "no topics"
+        recording.close()
+        msg = f"{path} holds no messages ({topics}); record again, with the cameras publishing"
+        raise BagError(msg)
+    return recording

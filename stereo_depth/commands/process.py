@@ -17,7 +17,7 @@ from stereo_depth.commands.process_many import add_fleet_options, check_single_b
 from stereo_depth.core.option_fields import option_names
 from stereo_depth.core.params import COMPAT_ALIASES, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
-from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS
+from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS, camera_fixes
 from stereo_depth.options import (
     SYNC_OPTIONS,
     NodeOptions,
@@ -160,6 +160,9 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from(args)
     assert settings.stereo is not None
     params, options = settings.stereo, options_from(args, settings)
+    fixes = camera_fixes(options.output)
+    if fixes is not None:
+        print(f"inputs corrected: {fixes}", file=sys.stderr)
     interrupt_on_sigterm()
     if args.out_dir is not None:
         return run_many(args, params, options)

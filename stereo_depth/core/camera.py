@@ -8,6 +8,7 @@ and the same for every frame.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -93,14 +94,14 @@ def check_camera_info(info: CameraInfo, side: str) -> None:
     if info.width <= 0 or info.height <= 0:
         msg = f"{side} camera_info: image size {info.width}x{info.height} is empty; set width and height"
         raise CalibrationError(msg)
+    if info.p[0, 0] <= 0 or info.p[1, 1] <= 0:
+        msg = f"{side} camera_info: P has no focal length (P[0,0]={info.p[0, 0]}); the camera is uncalibrated"
+        raise CalibrationError(msg)
     if info.k[0, 0] <= 0 or info.k[1, 1] <= 0:
         msg = (
             f"{side} camera_info: K has no focal length (fx={info.k[0, 0]}, fy={info.k[1, 1]}); "
             "the camera is uncalibrated"
         )
-        raise CalibrationError(msg)
-    if info.p[0, 0] <= 0 or info.p[1, 1] <= 0:
-        msg = f"{side} camera_info: P has no focal length (P[0,0]={info.p[0, 0]}); the camera is uncalibrated"
         raise CalibrationError(msg)
     if info.distortion_model not in DISTORTION_MODELS and np.any(info.d):
         msg = (
@@ -137,7 +138,7 @@ class StereoCamera:
             )
             raise CalibrationError(msg)
         baseline = self.baseline
-        if not np.isfinite(baseline) or baseline == 0:
+        if not np.isfinite(baseline):
             msg = (
                 f"right camera_info: P[0,3]={self.right.p[0, 3]} gives baseline {baseline} m; the right "
                 "P must hold -fx*baseline (stereo calibration missing?)"
@@ -146,7 +147,8 @@ class StereoCamera:
         if baseline < 0:
             msg = (
                 f"right camera_info: P[0,3]={self.right.p[0, 3]} puts the right camera {-baseline:.3f} m "
-                "to the LEFT of the left camera; left and right topics are probably swapped"
+                "to the LEFT of the left camera; left and right topics are probably swapped (set "
+                "swap_left_right), or the driver gets the sign of P[0,3] wrong (set baseline, in metres)"
             )
             raise CalibrationError(msg)
 
@@ -182,6 +184,23 @@ class StereoCamera:
     def baseline(self) -> float:
         """Metres, positive for a right camera on the right: B = -P_right[0,3] / P_right[0,0]."""
         return float(-self.right.p[0, 3] / self.right.p[0, 0])
+
+    @property
+    def no_depth_reason(self) -> str | None:
+        """Why this pair gives disparity but no depth (a zero baseline, as stereo_image_proc's own test
+        fixtures publish), or None when Z = f * B / d is defined."""
+        if self.baseline != 0:
+            return None
+        fix = (
+            "publish the stereo calibration's right P (P[0,3] = -fx * baseline), or set the baseline parameter (metres)"
+        )
+        if self.left.p[0, 3] != 0:  # the left P holds the offset: it is the right camera's
+            fix = f"the left camera_info has P[0,3]={self.left.p[0, 3]}: left and right look swapped, set "
+            fix += "swap_left_right"
+        return (
+            f"right camera_info: P[0,3]={self.right.p[0, 3]} gives baseline 0 m: disparity is published, but "
+            f"depth and points2 are not (Z = f * baseline / d); {fix}"
+        )
 
     @property
     def disparity_offset(self) -> float:
@@ -248,6 +267,24 @@ class StereoCamera:
             return image
         map1, map2 = self.rectification_maps(side)
         return cv2.remap(image, map1, map2, interpolation)
+
+
+def rectified_input(info: CameraInfo) -> CameraInfo:
+    """The calibration of an image that is rectified already, from a camera_info that may hold only P
+    (K = 0, D and R empty or zero, as stereo_image_proc's own test fixtures publish): such an image lies
+    in P's image plane, so K = P's left 3x3, no distortion, R = I. A full camera_info is kept as it is
+    (its K, D and R still rectify a mask drawn on the raw image)."""
+    if info.k[0, 0] > 0 and info.k[1, 1] > 0:
+        return info
+    return dataclasses.replace(info, k=info.p[:, :3].copy(), d=np.zeros(0), r=np.eye(3))
+
+
+def with_baseline(info: CameraInfo, baseline: float) -> CameraInfo:
+    """The right camera's calibration with P[0,3] = -fx * baseline (metres), for drivers that publish
+    it zero or with the wrong sign."""
+    p = info.p.copy()
+    p[0, 3] = -p[0, 0] * baseline
+    return dataclasses.replace(info, p=p)
 
 
 def needs_rectification(info: CameraInfo) -> bool:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
+from stereo_depth.errors import CalibrationError
 
 
 @dataclass
@@ -42,6 +43,8 @@ def disparity_to_depth(
     `offset_adjusted`: the disparity already has cx_left - cx_right subtracted (a DisparityImage's
     contents), so it must not be subtracted again; the arithmetic is otherwise the same, bit for bit.
     """
+    if camera.no_depth_reason is not None:
+        raise CalibrationError(camera.no_depth_reason)
     offset = 0.0 if offset_adjusted else camera.disparity_offset
     d: np.ndarray = np.subtract(disparity, np.float32(offset), out=out, dtype=np.float32)
     d[~(d > 0)] = np.nan

@@ -61,8 +61,15 @@ def create_bm(params: StereoParams) -> Matcher:
     bm.setUniquenessRatio(round(params.uniqueness_ratio))
     bm.setSpeckleWindowSize(params.speckle_size)
     bm.setSpeckleRange(params.speckle_range)
-    bm.setDisp12MaxDiff(params.disp12_max_diff if params.disp12_max_diff > 0 else -1)
+    bm.setDisp12MaxDiff(params.disp12_max_diff if params.disp12_max_diff > 0 else -1)  # 0: off, as stereo_image_proc
     return OpenCVMatcher(bm, params.min_disparity)
+
+
+def sgbm_disp12_max_diff(params: StereoParams) -> int:
+    """disp12_max_diff as StereoSGBM takes it. SGBM turns any value <= 0 into 1, so -1 (check off) becomes
+    a tolerance as wide as the disparity range, which no two disparities of the range exceed; 0 goes
+    through as stereo_image_proc passes it (a 1 px check)."""
+    return params.disparity_range if params.disp12_max_diff < 0 else params.disp12_max_diff
 
 
 def opencv_sgbm(params: StereoParams, speckle_size: int) -> cv2.StereoSGBM:
@@ -72,7 +79,7 @@ def opencv_sgbm(params: StereoParams, speckle_size: int) -> cv2.StereoSGBM:
         blockSize=params.correlation_window_size,
         P1=round(params.P1),
         P2=round(params.P2),
-        disp12MaxDiff=params.disp12_max_diff if params.disp12_max_diff > 0 else -1,
+        disp12MaxDiff=sgbm_disp12_max_diff(params),
         preFilterCap=params.prefilter_cap,
         uniquenessRatio=round(params.uniqueness_ratio),
         speckleWindowSize=speckle_size,

@@ -42,7 +42,15 @@ class StereoParams:
     )
     speckle_size: int = option(100, "Remove disparity blobs smaller than this many pixels (0 = off)", 0, 1000, 1)
     speckle_range: int = option(2, "Largest disparity step inside one blob, pixels", 0, 31, 1)
-    disp12_max_diff: int = option(1, "SGBM left-right check tolerance in pixels (0 = check off)", 0, 128, 1)
+    disp12_max_diff: int = option(
+        1,
+        "Left-right check tolerance, pixels, every matcher: -1 = check off, N >= 1 = N px; 0 = what "
+        "stereo_image_proc gives (bm: off, as it never passes it to BM; sgbm: 1 px, OpenCV's least; "
+        "census_sgm: 0 px)",
+        -1,
+        128,
+        1,
+    )
     P1: float = option(
         200.0, "Smoothness penalty for disparity changes of 1 px (sgbm: grey levels, census_sgm: bits)", 0.0, 100000.0
     )

@@ -61,5 +61,5 @@ def plan_inputs(paths: list[Path], out_dir: Path) -> list[BagInput]:
 
 
 def output_name(bag: Path) -> str:
-    """A rosbag2 keeps its folder name; a ROS 1 `run.bag` becomes the rosbag2 folder `run`."""
-    return bag.stem if bag.suffix == ROS1_SUFFIX else bag.name
+    """A rosbag2 keeps its folder name (`run.bag/` too); a ROS 1 file `run.bag` becomes the rosbag2 folder `run`."""
+    return bag.stem if bag.is_file() else bag.name

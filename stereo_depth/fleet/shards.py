@@ -51,7 +51,7 @@ def merge(
     """The parts' messages, part after part in their recorded order, into one bag (atomically)."""
     with BagWriter(out_bag, storage=storage, compress=compress, overwrite=overwrite, custom_data=custom_data) as writer:
         for part in parts:
-            reader = open_reader(part)
+            reader = open_reader(part, allow_empty=True)  # a shard may own no frame
             try:
                 for connection, timestamp, raw in reader.messages(reader.connections):
                     writer.write_raw(connection.topic, connection.msgtype, raw, timestamp)

@@ -9,7 +9,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.frames import image_outputs
-from stereo_depth.options import INPUT_OPTIONS, Settings
+from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
@@ -23,7 +23,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
-    OPTIONS = INPUT_OPTIONS
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS)
     WITH_STEREO = True
 
     def __init__(self) -> None:

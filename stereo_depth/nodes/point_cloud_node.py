@@ -31,7 +31,7 @@ class PointCloudNode(StereoIONode):
         ("disparity", DisparityImage),
     )
     CALIBRATIONS = ((1, 0), (2, 3))  # the disparity carries the left image's stamp
-    OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS)
+    OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS, "baseline")
 
     def __init__(self) -> None:
         super().__init__("point_cloud_node")
@@ -54,6 +54,9 @@ class PointCloudNode(StereoIONode):
                 f"{camera.width}x{camera.height}; remap the topics of one camera together"
             )
             raise ImageError(msg)
+        if camera.no_depth_reason is not None:
+            self.problems.warn_once(camera.no_depth_reason)
+            return {}
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         if not self._state.cloud_rate.due(frame.stamp_ns, settings.output.points_max_rate):

@@ -27,7 +27,14 @@ from stereo_msgs.msg import DisparityImage
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.frames import OUTPUTS, Geometry, OutputState, frame_outputs
-from stereo_depth.options import CAMERA_OPTIONS, CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
+from stereo_depth.options import (
+    CAMERA_OPTIONS,
+    CLOUD_OPTIONS,
+    DRIVER_FIX_OPTIONS,
+    INPUT_OPTIONS,
+    NodeOptions,
+    Settings,
+)
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
@@ -70,6 +77,7 @@ class StereoNode(StereoIONode):
     OPTIONS = (
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,
+        *DRIVER_FIX_OPTIONS,
         *CLOUD_OPTIONS,
         "depth_encoding",
         "clearing_max_depth",
@@ -115,6 +123,8 @@ class StereoNode(StereoIONode):
         def publish_images(messages: dict[str, Any]) -> None:
             self._publish(messages, stages)
             self._maybe_check_calibration(frame.stamp_ns, result, options)
+            if frame.camera.no_depth_reason is not None:  # frame_outputs sends disparity only
+                self.problems.warn_once(frame.camera.no_depth_reason)
 
         def publish_cloud(messages: dict[str, Any], geometry: Geometry | None) -> None:
             del geometry  # the messages are all the node needs

@@ -36,6 +36,7 @@ class ProblemLog:
         self._period_s = period_s
         self._lock = threading.Lock()
         self._seen: dict[str, _Seen] = {}
+        self._once: set[str] = set()
 
     def skipped(self, text: str) -> None:
         """Input was refused (frame or message skipped): diagnostics' last error and a warning."""
@@ -47,6 +48,16 @@ class ProblemLog:
         line = self._due(text, _NUMBERS.sub("#", text), time.monotonic())
         if line is not None:
             self._logger.warning(line)  # rclpy wants one severity per call site: one call each
+
+    def warn_once(self, text: str) -> None:
+        """Something that holds for every frame and costs only part of the outputs (a calibration with no
+        baseline: disparity, but no depth): one warning for the node's lifetime, not one per period."""
+        kind = _NUMBERS.sub("#", text)
+        with self._lock:
+            if kind in self._once:
+                return
+            self._once.add(kind)
+        self._logger.warning(text)
 
     def info(self, text: str, kind: str | None = None) -> None:
         """Worth knowing, nothing lost (a new calibration, stamps restarting). `kind` tells apart what

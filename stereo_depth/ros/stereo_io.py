@@ -35,7 +35,7 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
-from stereo_depth.frames import InputNames, StereoFrame, decode_frame, decode_image, match_frame, named
+from stereo_depth.frames import InputNames, StereoFrame, camera_fixes, decode_frame, decode_image, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
 from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
@@ -169,6 +169,9 @@ class StereoIONode(Node):
         self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
         self.create_timer(1.0, self._flush_when_idle)
         self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
+        fixes = camera_fixes(settings.output)
+        if fixes is not None:
+            self.get_logger().info(f"inputs corrected: {fixes}")
         self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
 
     # ------------------------------------------------------------ to implement / use in subclasses
