@@ -54,6 +54,7 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 # No input for this long: sets waiting only for a camera_info go out. Longer than a reliable writer takes
 # to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
 IDLE_FLUSH_S = 5.0
+SIGNAL_POLL_S = 0.25  # the longest a SIGINT / SIGTERM waits for the spin to return to Python
 
 
 class LatestWorker:
@@ -137,7 +138,7 @@ class StereoIONode(Node):
         self._info_files: dict[int, tuple[str, int, CameraInfo]] = {}
         self._outputs: list[Publisher] = []
         self._inputs: list[AdaptiveSubscription] = []
-        self._timers: list[Timer] = []
+        self._io_timers: list[Timer] = []
         self._worker: LatestWorker | None = None
         self._sync_lock = threading.Lock()
         self._sync = self._new_sync(self._options)
@@ -186,7 +187,7 @@ class StereoIONode(Node):
             for index, (topic, msg_type) in enumerate(inputs)
             if index not in self._info_files
         ]
-        self._timers = [
+        self._io_timers = [
             self.create_timer(1.0, self._publish_diagnostics),
             self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False)),
             self.create_timer(1.0, self._flush_when_idle),
@@ -199,9 +200,9 @@ class StereoIONode(Node):
         """Unsubscribe, let the running frame finish, end the workers; half-paired sets are dropped."""
         for subscription in self._inputs:
             subscription.destroy()
-        for timer in self._timers:
+        for timer in self._io_timers:
             self.destroy_timer(timer)
-        self._inputs, self._timers = [], []
+        self._inputs, self._io_timers = [], []
         if self._worker is not None:
             self.stop_workers()
             self._worker = None
@@ -525,7 +526,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
                 f"Fast DDS: large-message profile {profile} for this process (no profile was exported); see "
                 'README "Inputs and outputs over DDS"'
             )
-        rclpy.spin(node)  # the diagnostics / QoS timers wake it often enough for signals
+        # The signal handler runs between two bytecodes of this thread: something must wake the spin, also in
+        # a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
+        node.create_timer(SIGNAL_POLL_S, lambda: None)
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (StereoDepthError, InvalidParameterValueException, InvalidParameterTypeException) as exc:
