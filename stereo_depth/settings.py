@@ -152,7 +152,8 @@ class Settings:
     output: OutputOptions = field(default_factory=OutputOptions)
 
 
-# Parameters every rclpy node has, and the prefix of rclpy's per-topic QoS overrides.
+# Parameters every rclpy node has, and the prefix of rclpy's per-topic QoS overrides (a node checks those
+# against its own topics once its endpoints exist: ros/qos.py `unused_overrides_line`).
 ROS_BUILTINS = ("use_sim_time", "start_type_description_service")
 ROS_BUILTIN_PREFIX = "qos_overrides."
 

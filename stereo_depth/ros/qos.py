@@ -96,7 +96,10 @@ class AdaptiveSubscription:
         self.recheck_requested = False
         self._overridden = given_overrides(node, self.topic, "subscription")
         self.reliability = choose_reliability(policy, [], ReliabilityPolicy.RELIABLE)
-        self._subscription = self._create(OVERRIDABLE)  # declares the override parameters, checks their values
+        # The first subscription of this topic declares its override parameters (and rclpy checks the values
+        # given); a later one (re-activated lifecycle node) must not take their start values for its own.
+        declared = node.has_parameter(f"{QOS_OVERRIDES}{self.topic}.subscription.reliability")
+        self._subscription = self._create(() if declared else OVERRIDABLE)
         self.reliability = self._subscription.qos_profile.reliability
 
     def _effective(self, policy: str) -> str:
