@@ -1,8 +1,9 @@
-"""rclpy's per-topic QoS overrides on stereo_node's inputs and outputs, checked through the ROS graph.
+"""rclpy's per-topic QoS overrides on the nodes' inputs and outputs, checked through the ROS graph.
 
 One stereo_node gets `points2` best effort by `-p`, and `disparity` best effort and `left/image_raw`
-reliable from a params file; the QoS each endpoint really has is read back with the graph API, as
-`ros2 topic info -v` shows it.
+reliable from a params file; a point_cloud_node (the split chain's nodes share the node base) gets its
+`points2` and its `disparity` input best effort. The QoS each endpoint really has is read back with
+the graph API, as `ros2 topic info -v` shows it.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import Image
 
 NS = "/qos"
+SPLIT = "/qos_split"
 OVERRIDES = "qos_overrides"
 
 
@@ -37,17 +39,23 @@ def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.Temp
         str(params),
     ]
     process = NodeProcess("stereo_node", NS, ros_env, work, args)
-    with ros.running([process]):
+    split = [
+        "-p",
+        f"{OVERRIDES}.{SPLIT}/points2.publisher.reliability:=best_effort",
+        "-p",
+        f"{OVERRIDES}.{SPLIT}/disparity.subscription.reliability:=best_effort",
+    ]
+    with ros.running([process, NodeProcess("point_cloud_node", SPLIT, ros_env, work, split)]):
         yield process
 
 
-def publisher_reliability(ros: RosHarness, topic: str) -> ReliabilityPolicy | None:
-    infos = [i for i in ros.node.get_publishers_info_by_topic(topic) if i.node_name == "stereo_node"]
+def publisher_reliability(ros: RosHarness, topic: str, node: str = "stereo_node") -> ReliabilityPolicy | None:
+    infos = [i for i in ros.node.get_publishers_info_by_topic(topic) if i.node_name == node]
     return infos[0].qos_profile.reliability if infos else None
 
 
-def subscription_reliability(ros: RosHarness, topic: str) -> ReliabilityPolicy | None:
-    infos = [i for i in ros.node.get_subscriptions_info_by_topic(topic) if i.node_name == "stereo_node"]
+def subscription_reliability(ros: RosHarness, topic: str, node: str = "stereo_node") -> ReliabilityPolicy | None:
+    infos = [i for i in ros.node.get_subscriptions_info_by_topic(topic) if i.node_name == node]
     return infos[0].qos_profile.reliability if infos else None
 
 
@@ -61,6 +69,17 @@ def test_output_overrides_reach_the_graph_and_the_others_stay_reliable(ros: RosH
     }
     for name, reliability in expected.items():
         wait_until(lambda n=name, r=reliability: publisher_reliability(ros, f"{NS}/{n}") == r, f"{name}: {reliability}")
+
+
+def test_a_split_node_takes_overrides_on_its_input_and_output(ros: RosHarness, node: NodeProcess) -> None:
+    del node
+    best_effort = ReliabilityPolicy.BEST_EFFORT
+    wait_until(lambda: publisher_reliability(ros, f"{SPLIT}/points2", "point_cloud_node") == best_effort, "points2")
+    wait_until(
+        lambda: subscription_reliability(ros, f"{SPLIT}/disparity", "point_cloud_node") == best_effort, "disparity"
+    )
+    camera_info = f"{SPLIT}/left/camera_info"  # not overridden: auto, reliable while nobody publishes
+    assert subscription_reliability(ros, camera_info, "point_cloud_node") == ReliabilityPolicy.RELIABLE
 
 
 def test_input_override_replaces_the_adaptive_rule_for_its_topic_only(ros: RosHarness, node: NodeProcess) -> None:
