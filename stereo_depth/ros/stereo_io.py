@@ -1,4 +1,4 @@
-"""What the four nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
+"""What the nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
 
 Subscription callbacks only stamp, count and pair messages; the work runs on a worker thread that
 takes complete sets oldest first from a short queue (`max_waiting_frames`). When frames arrive faster
@@ -113,7 +113,11 @@ class LatestWorker:
 
 
 class StereoIONode(Node):
-    """Base of the four nodes. A subclass names its inputs and options and implements `process`."""
+    """Base of the nodes. A subclass names its inputs and options and implements `process`.
+
+    What a node holds is built in the steps of a ROS lifecycle, which a plain node runs at start and a
+    managed one (stereo_lifecycle_node) on its transitions: parameters (__init__), publishers and the
+    matcher (`configure_io`), workers and subscriptions (`activate_io`), and back."""
 
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
     CALIBRATIONS: Sequence[tuple[int, int]] = ()  # (camera_info input, the input whose stamp it carries)
@@ -219,7 +223,7 @@ class StereoIONode(Node):
         self._info_files = {}
 
     def _new_diagnostics(self) -> None:
-        """Fresh counters for the inputs of this configuration (a plain node: once)."""
+        """Fresh counters at each activation: a re-activated node reports nothing from before its pause."""
         self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
         self.problems = ProblemLog(self.get_logger(), self.diagnostics)
 
