@@ -198,3 +198,26 @@ def test_sigint_ends_the_node_cleanly_from_every_state(
     frame_through(active, inputs, pair, disparity, points)
     inputs.publish(pair, next(_stamps))  # a frame in flight when the signal comes
     stop_all([managed.process for managed in nodes.values()])
+
+
+def test_shutdown_from_inactive_and_from_active_releases_everything(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair
+) -> None:
+    inactive = start(ros, ros_env, tmp_path, "/shutdown_inactive")
+    active = start(ros, ros_env, tmp_path, "/shutdown_active")
+    assert inactive.change(Transition.TRANSITION_CONFIGURE)
+    assert active.change(Transition.TRANSITION_CONFIGURE) and active.change(Transition.TRANSITION_ACTIVATE)
+    disparity = ros.collector(DisparityImage, f"{active.ns}/disparity")
+    points = ros.collector(PointCloud2, f"{active.ns}/points2")
+    frame_through(active, StereoInput(ros, active.ns), pair, disparity, points)
+
+    assert inactive.change(Transition.TRANSITION_INACTIVE_SHUTDOWN)
+    assert active.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
+    for managed in (inactive, active):
+        assert managed.state() == "finalized"
+        managed.wait_inputs(0)
+        managed.wait_outputs(0)
+        assert (
+            "shutdown: done, matcher none, 0 publishers, 0 subscriptions, workers stopped" in managed.process.output()
+        )
+    stop_all([inactive.process, active.process])
