@@ -247,7 +247,8 @@ def node_options(values: Mapping[str, Any]) -> NodeOptions:
     return NodeOptions(**coerced(NodeOptions, values)).validate()
 
 
-# Parameters every rclpy node has, and the prefix of rclpy's per-topic QoS overrides.
+# Parameters every rclpy node has, and the prefix of rclpy's per-topic QoS overrides (a node checks those
+# against its own topics once its endpoints exist: ros/qos.py `unused_overrides_line`).
 ROS_BUILTINS = ("use_sim_time", "start_type_description_service")
 ROS_BUILTIN_PREFIX = "qos_overrides."
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-NODES = ("stereo_node", "disparity_node", "point_cloud_node", "rectify_node")
+NODES = ("stereo_node", "stereo_lifecycle_node", "disparity_node", "point_cloud_node", "rectify_node")
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The four ROS nodes, one console script each (`ros2 run stereo_depth <name>`).
+"""The ROS nodes, one console script each (`ros2 run stereo_depth <name>`); stereo_lifecycle_node is managed.
 
 Ctrl-C or SIGTERM must end a node with exit code 0 and no traceback, whenever it arrives. Importing
 OpenCV and rclpy takes a second or two, so the handler is installed here, before any of that, and

@@ -28,6 +28,8 @@ class DisparityNode(StereoIONode):
 
     def __init__(self) -> None:
         super().__init__("disparity_node")
+
+    def open_outputs(self) -> None:
         self._disparity = self.output(DisparityImage, "disparity")
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:

@@ -35,6 +35,8 @@ class PointCloudNode(StereoIONode):
 
     def __init__(self) -> None:
         super().__init__("point_cloud_node")
+
+    def open_outputs(self) -> None:
         self.pipeline = StereoPipeline()  # only its calibration and ray caches are used here
         self._points = self.output(PointCloud2, "points2")
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first

@@ -29,6 +29,8 @@ class RectifyNode(StereoIONode):
 
     def __init__(self) -> None:
         super().__init__("rectify_node")
+
+    def open_outputs(self) -> None:
         self._maps: tuple[Calibration, tuple[np.ndarray, np.ndarray] | None] | None = None
         self._rect = self.output(Image, "image_rect")
 

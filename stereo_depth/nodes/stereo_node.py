@@ -98,10 +98,15 @@ class StereoNode(StereoIONode):
     WITH_STEREO = True
     MAX_FRAMES_AT_ONCE = 4
 
-    def __init__(self) -> None:
-        super().__init__("stereo_node")
+    def __init__(self, name: str = "stereo_node", **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+
+    def open_outputs(self) -> None:
         self._output_publishers = {name: self.output(msg_type, name) for name, msg_type in OUTPUT_TYPES.items()}
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
+
+    def start_workers(self) -> None:
+        super().start_workers()
         # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
         self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
         self._check_idle = threading.Event()

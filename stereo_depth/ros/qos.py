@@ -7,18 +7,29 @@ subscriber, however, never matches a best-effort publisher (most camera drivers 
 So each input follows its publishers the way rosbag2 does: reliable when every publisher offers
 reliable, best effort as soon as one offers only best effort, re-checked whenever a publisher appears
 or goes. Outputs are reliable (as stereo_image_proc's), which both kinds of subscriber accept.
+
+Every input and output also takes rclpy's per-topic QoS overrides (`qos_overrides.<topic>.publisher|
+subscription.history|depth|reliability`, read-only parameters declared with the endpoint, so `ros2
+param list` shows them): what the user states wins over the rules above, for that endpoint only.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+import difflib
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+
+from stereo_depth.errors import ParameterError
 
 OUTPUT_DEPTH = 2  # a subscriber that falls behind gets the newest outputs, not a growing queue
+QOS_OVERRIDES = "qos_overrides."
+OVERRIDABLE = QoSOverridingOptions.with_default_policies().policy_kinds  # history, depth, reliability
 
 
 def output_qos() -> QoSProfile:
@@ -42,11 +53,10 @@ def input_qos(reliability: ReliabilityPolicy, depth: int) -> QoSProfile:
 def choose_reliability(
     policy: str, offered: Iterable[ReliabilityPolicy], current: ReliabilityPolicy
 ) -> ReliabilityPolicy:
-    """rosbag2's rule: reliable only if every publisher offers it; unchanged while nobody publishes."""
-    if policy == "reliable":
-        return ReliabilityPolicy.RELIABLE
-    if policy == "best_effort":
-        return ReliabilityPolicy.BEST_EFFORT
+    """rosbag2's rule: reliable only if every publisher offers it; unchanged while nobody publishes.
+    Any policy other than "auto" (input_reliability, or a reliability override) is taken as it is."""
+    if policy != "auto":
+        return ReliabilityPolicy[policy.upper()]
     offered = list(offered)
     if not offered:
         return current
@@ -61,6 +71,8 @@ class AdaptiveSubscription:
     Created at start-up (so `ros2 node info` lists it) as reliable, the common default for publishers;
     `recheck()` recreates it when the publishers' offer calls for the other reliability. The node calls
     `recheck()` from a timer, and the matched / incompatible-QoS events make it happen at once.
+    The policies the user overrode (`qos_overrides.<topic>.subscription.*`) are applied to every
+    recreation; a reliability override replaces the adaptive rule for this topic.
     """
 
     def __init__(
@@ -82,28 +94,44 @@ class AdaptiveSubscription:
         self._depth = depth
         self._on_lost = on_lost
         self.recheck_requested = False
+        self._overridden = given_overrides(node, self.topic, "subscription")
         self.reliability = choose_reliability(policy, [], ReliabilityPolicy.RELIABLE)
-        self._subscription = self._create()
+        # The first subscription of this topic declares its override parameters (and rclpy checks the values
+        # given); a later one (re-activated lifecycle node) must not take their start values for its own.
+        declared = node.has_parameter(f"{QOS_OVERRIDES}{self.topic}.subscription.reliability")
+        self._subscription = self._create(() if declared else OVERRIDABLE)
+        self.reliability = self._subscription.qos_profile.reliability
 
-    def _create(self) -> Any:
+    def _effective(self, policy: str) -> str:
+        """input_reliability, unless this topic's reliability is overridden."""
+        if QoSPolicyKind.RELIABILITY in self._overridden:
+            return str(self._overridden[QoSPolicyKind.RELIABILITY])
+        return policy
+
+    def _create(self, overridable: Iterable[QoSPolicyKind] = ()) -> Any:
         events = SubscriptionEventCallbacks(
             matched=lambda _info: self._request_recheck(),
             incompatible_qos=lambda _info: self._request_recheck(),
             message_lost=self._lost,
         )
-        return self._node.create_subscription(
-            self._msg_type,
-            self.topic,
-            self._callback,
-            input_qos(self.reliability, self._depth),
-            event_callbacks=events,
-        )
+        with override_errors():
+            return self._node.create_subscription(
+                self._msg_type,
+                self.topic,
+                self._callback,
+                input_qos(self.reliability, self._depth),
+                event_callbacks=events,
+                qos_overriding_options=QoSOverridingOptions([*overridable, *self._overridden]),
+            )
 
     def _request_recheck(self) -> None:
         self.recheck_requested = True
 
     def _lost(self, info: QoSMessageLostInfo) -> None:
         self._on_lost(int(info.total_count_change))
+
+    def destroy(self) -> None:
+        self._node.destroy_subscription(self._subscription)
 
     def configure(self, policy: str, depth: int) -> None:
         """New parameter values: the subscription is recreated if its QoS has to change."""
@@ -114,7 +142,7 @@ class AdaptiveSubscription:
     def recheck(self, *, force: bool = False) -> None:
         self.recheck_requested = False
         offered = [info.qos_profile.reliability for info in self._node.get_publishers_info_by_topic(self.topic)]
-        wanted = choose_reliability(self._policy, offered, self.reliability)
+        wanted = choose_reliability(self._effective(self._policy), offered, self.reliability)
         if wanted == self.reliability and not force:
             return
         self._node.destroy_subscription(self._subscription)
@@ -124,3 +152,42 @@ class AdaptiveSubscription:
             f"{self.topic}: subscribed {wanted.name.lower()} (publishers offer "
             f"{', '.join(sorted({r.name.lower() for r in offered})) or 'nothing yet'})"
         )
+
+
+def given_overrides(node: Node, topic: str, entity: str) -> dict[QoSPolicyKind, Any]:
+    """The policies of `topic`'s publisher or subscription that -p / --params-file override, with the
+    values given (rclpy keeps them in `_parameter_overrides` until the endpoint declares them)."""
+    prefix = f"{QOS_OVERRIDES}{topic}.{entity}."
+    given = getattr(node, "_parameter_overrides", {})
+    return {
+        kind: given[prefix + kind.name.lower()].value for kind in OVERRIDABLE if prefix + kind.name.lower() in given
+    }
+
+
+@contextmanager
+def override_errors() -> Iterator[None]:
+    """rclpy's errors for an override value it cannot apply, as our ParameterError (one line, exit 2)."""
+    try:
+        yield
+    except (InvalidQosOverridesError, RuntimeError) as exc:
+        if isinstance(exc, RuntimeError) and "QoS override" not in str(exc):
+            raise
+        raise ParameterError(str(exc)) from exc
+
+
+def unused_overrides_line(node: Node) -> str | None:
+    """One line naming the given qos_overrides that match no endpoint of this node (a misspelt topic
+    would otherwise be ignored without a word), each with the closest declared one; None if all apply."""
+    declared = sorted(node.list_parameters([QOS_OVERRIDES.rstrip(".")], 0).names)
+    unused = sorted(
+        name
+        for name in getattr(node, "_parameter_overrides", {})
+        if name.startswith(QOS_OVERRIDES) and not node.has_parameter(name)
+    )
+    if not unused:
+        return None
+    hints = []
+    for name in unused:
+        close = difflib.get_close_matches(name, declared, n=1)
+        hints.append(f"'{name}' (did you mean '{close[0]}'?)" if close else f"'{name}'")
+    return "qos_overrides for no topic of this node, ignored: " + "; ".join(hints)

@@ -1,4 +1,4 @@
-"""What the four nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
+"""What the nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
 
 Subscription callbacks only stamp, count and pair messages; the work runs on a worker thread that
 takes complete sets oldest first from a short queue (`max_waiting_frames`). When frames arrive faster
@@ -27,7 +27,10 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
+from rclpy.timer import Timer
 from sensor_msgs.msg import CompressedImage
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
@@ -41,7 +44,7 @@ from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog
-from stereo_depth.ros.qos import AdaptiveSubscription, output_qos
+from stereo_depth.ros.qos import AdaptiveSubscription, output_qos, override_errors, unused_overrides_line
 from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet, Synchronizer
@@ -52,6 +55,7 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 # No input for this long: sets waiting only for a camera_info go out. Longer than a reliable writer takes
 # to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
 IDLE_FLUSH_S = 5.0
+SIGNAL_POLL_S = 0.25  # the longest a SIGINT / SIGTERM waits for the spin to return to Python
 
 
 class LatestWorker:
@@ -110,7 +114,11 @@ class LatestWorker:
 
 
 class StereoIONode(Node):
-    """Base of the four nodes. A subclass names its inputs and options and implements `process`."""
+    """Base of the nodes. A subclass names its inputs and options and implements `process`.
+
+    What a node holds is built in the steps of a ROS lifecycle, which a plain node runs at start and a
+    managed one (stereo_lifecycle_node) on its transitions: parameters (__init__), publishers and the
+    matcher (`configure_io`), workers and subscriptions (`activate_io`), and back."""
 
     INPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class), in synchronizer order
     CALIBRATIONS: Sequence[tuple[int, int]] = ()  # (camera_info input, the input whose stamp it carries)
@@ -121,11 +129,38 @@ class StereoIONode(Node):
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
     MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
 
-    def __init__(self, name: str, **kwargs: Any) -> None:
+    def __init__(self, name: str, *, managed: bool = False, **kwargs: Any) -> None:
+        """Declares the parameters. A plain node then configures and activates itself; a `managed` one
+        (lifecycle) waits for its transitions, having created nothing else."""
         super().__init__(name, **kwargs)
         self.parameters = NodeParameters(
             self, self.OPTIONS, with_stereo=self.WITH_STEREO, on_change=self._settings_changed
         )
+        self._options = self.parameters.settings.options
+        self.topics: list[str] = []
+        self._new_diagnostics()
+        self.pipeline: StereoPipeline | None = None
+        self._info_files: dict[int, tuple[str, int, CameraInfo]] = {}
+        self._outputs: list[Publisher] = []
+        self._inputs: list[AdaptiveSubscription] = []
+        self._io_timers: list[Timer] = []
+        self._worker: LatestWorker | None = None
+        self._sync_lock = threading.Lock()
+        self._sync = self._new_sync(self._options)
+        self._last_input_s = 0.0  # monotonic time of the newest input message; 0 once flushed
+        self._sequence = itertools.count(1)  # input order of the matched sets
+        self._order_lock = threading.Lock()
+        self._published = 0  # sequence number of the newest set whose outputs went out
+        self._frame = threading.local()  # the sequence number of the set this worker thread processes
+        self._overrides_checked = False
+        if not managed:
+            self.configure_io()
+            self.activate_io()
+
+    # ------------------------------------------------------------ life cycle (a plain node runs all at start)
+
+    def configure_io(self) -> None:
+        """Calibration files, the pipeline (matcher) and the publishers; nothing is received yet."""
         settings = self.parameters.settings
         inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
         self._info_files = camera_info_files(self.CAMERA_INFO_FILES, dict(self.CALIBRATIONS), settings.options)
@@ -133,13 +168,20 @@ class StereoIONode(Node):
             self._info_files[index][0] if index in self._info_files else self.resolve_topic_name(topic)
             for index, (topic, _) in enumerate(inputs)
         ]
-        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
-        self.problems = ProblemLog(self.get_logger(), self.diagnostics)
-        self.pipeline = StereoPipeline(settings.stereo) if settings.stereo is not None else None
-        self._options = settings.options
-        self._sync_lock = threading.Lock()
-        self._sync = self._new_sync(settings.options)
-        self._last_input_s = 0.0  # monotonic time of the newest input message; 0 once flushed
+        if settings.stereo is not None:
+            self.pipeline = StereoPipeline(settings.stereo)
+        fixes = camera_fixes(settings.output)
+        if fixes is not None:
+            self.get_logger().info(f"inputs corrected: {fixes}")
+        self.open_outputs()
+        self._diagnostics_pub = self.output(DiagnosticArray, "diagnostics", depth=10)
+
+    def activate_io(self) -> None:
+        """Workers, then the input subscriptions and the timers: frames flow from here on."""
+        settings = self.parameters.settings
+        self._new_diagnostics()
+        self.start_workers()
+        inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
         self._inputs = [
             AdaptiveSubscription(
                 self,
@@ -153,26 +195,50 @@ class StereoIONode(Node):
             for index, (topic, msg_type) in enumerate(inputs)
             if index not in self._info_files
         ]
-        self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self._worker = LatestWorker(
-            self._run_frame,
-            partial(self.diagnostics.add_dropped, 1),
-            settings.options.max_waiting_frames,
-            threads=self.MAX_FRAMES_AT_ONCE,
-        )
-        self._worker.parallel = self.frames_at_once(settings)
-        self._sequence = itertools.count(1)  # input order of the matched sets
-        self._order_lock = threading.Lock()
-        self._published = 0  # sequence number of the newest set whose outputs went out
-        self._frame = threading.local()  # the sequence number of the set this worker thread processes
-        self.create_timer(1.0, self._publish_diagnostics)
-        self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False))
-        self.create_timer(1.0, self._flush_when_idle)
-        self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True))
-        fixes = camera_fixes(settings.output)
-        if fixes is not None:
-            self.get_logger().info(f"inputs corrected: {fixes}")
+        self._io_timers = [
+            self.create_timer(1.0, self._publish_diagnostics),
+            self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False)),
+            self.create_timer(1.0, self._flush_when_idle),
+            self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True)),
+        ]
+        self._warn_unused_overrides()
         self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
+
+    def deactivate_io(self) -> None:
+        """Unsubscribe, let the running frame finish, end the workers; half-paired sets are dropped."""
+        for subscription in self._inputs:
+            subscription.destroy()
+        for timer in self._io_timers:
+            self.destroy_timer(timer)
+        self._inputs, self._io_timers = [], []
+        if self._worker is not None:
+            self.stop_workers()
+            self._worker = None
+        with self._sync_lock:
+            self._sync.reset()
+
+    def cleanup_io(self) -> None:
+        """Back to the state after __init__: publishers, pipeline and calibration files released."""
+        self.deactivate_io()
+        for publisher in self._outputs:
+            self.destroy_output(publisher)
+        self._outputs = []
+        self.pipeline = None
+        self._info_files = {}
+
+    def _new_diagnostics(self) -> None:
+        """Fresh counters at each activation: a re-activated node reports nothing from before its pause."""
+        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
+        self.problems = ProblemLog(self.get_logger(), self.diagnostics)
+
+    def _warn_unused_overrides(self) -> None:
+        """Once per process, when every endpoint exists: qos_overrides that match none of them."""
+        if self._overrides_checked:
+            return
+        self._overrides_checked = True
+        line = unused_overrides_line(self)
+        if line is not None:
+            self.get_logger().warning(line)
 
     # ------------------------------------------------------------ to implement / use in subclasses
 
@@ -185,6 +251,20 @@ class StereoIONode(Node):
     def frames_at_once(self, settings: Settings) -> int:
         """How many sets may be processed at once (at most MAX_FRAMES_AT_ONCE); 1 unless overridden."""
         return 1
+
+    def open_outputs(self) -> None:
+        """At configure: create the node's publishers with `output` (and any per-output state)."""
+
+    def start_workers(self) -> None:
+        """At activate: the worker that processes matched sets; a node with more threads extends this."""
+        settings = self.parameters.settings
+        self._worker = LatestWorker(
+            self._run_frame,
+            partial(self.diagnostics.add_dropped, 1),
+            settings.options.max_waiting_frames,
+            threads=self.MAX_FRAMES_AT_ONCE,
+        )
+        self._worker.parallel = self.frames_at_once(settings)
 
     @contextmanager
     def outputs_in_order(self) -> Iterator[bool]:
@@ -199,8 +279,22 @@ class StereoIONode(Node):
             self._published = sequence
             yield True
 
-    def output(self, msg_type: Any, topic: str) -> Publisher:
-        return self.create_publisher(msg_type, topic, output_qos())
+    def output(self, msg_type: Any, topic: str, depth: int | None = None) -> Publisher:
+        """A publisher with our output QoS (or history `depth`), which the user's qos_overrides amend."""
+        qos = output_qos() if depth is None else depth
+        with override_errors():
+            publisher = self.create_output(msg_type, topic, qos, QoSOverridingOptions.with_default_policies())
+        self._outputs.append(publisher)
+        return publisher
+
+    def create_output(
+        self, msg_type: Any, topic: str, qos: QoSProfile | int, overriding: QoSOverridingOptions
+    ) -> Publisher:
+        """A plain publisher; the lifecycle node makes it a lifecycle publisher."""
+        return self.create_publisher(msg_type, topic, qos, qos_overriding_options=overriding)
+
+    def destroy_output(self, publisher: Publisher) -> None:
+        self.destroy_publisher(publisher)
 
     @staticmethod
     def wanted(publisher: Publisher, enabled: bool) -> bool:
@@ -300,8 +394,10 @@ class StereoIONode(Node):
             self._stale_stamp(topic, stamp)
         if change.time_jumps:
             self._time_jump(topic, stamp)
+        worker = self._worker
         for stamp_ns, messages in sets:
-            self._worker.submit((next(self._sequence), stamp_ns, messages))
+            if worker is not None:  # None: deactivated since this message arrived
+                worker.submit((next(self._sequence), stamp_ns, messages))
 
     def _flush_when_idle(self) -> None:
         """The stream paused: a set that waits only for its camera_info goes out with the last one, as at
@@ -326,8 +422,9 @@ class StereoIONode(Node):
         """Runs after a successful parameter change; the worker picks the new set up on its next frame."""
         old, new = self._options, settings.options
         self._options = new
-        self._worker.capacity = new.max_waiting_frames
-        self._worker.parallel = self.frames_at_once(settings)
+        if self._worker is not None:
+            self._worker.capacity = new.max_waiting_frames
+            self._worker.parallel = self.frames_at_once(settings)
         if any(getattr(old, n) != getattr(new, n) for n in ("queue_size", "approximate_sync", "tolerance_ns")):
             with self._sync_lock:
                 self._sync.reset()
@@ -370,10 +467,11 @@ class StereoIONode(Node):
     def stop_workers(self) -> None:
         """Let the running frame finish and start nothing new; a node with more threads extends this,
         so that none of them publishes while the node is being destroyed."""
-        self._worker.stop()
+        if self._worker is not None:
+            self._worker.stop()
 
     def destroy_node(self) -> None:
-        self.stop_workers()
+        self.deactivate_io()
         super().destroy_node()
 
 
@@ -431,7 +529,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
                 f"Fast DDS: large-message profile {profile} for this process (no profile was exported); see "
                 'README "Inputs and outputs over DDS"'
             )
-        rclpy.spin(node)  # the diagnostics / QoS timers wake it often enough for signals
+        # The signal handler runs between two bytecodes of this thread: something must wake the spin, also in
+        # a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
+        node.create_timer(SIGNAL_POLL_S, lambda: None)
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (StereoDepthError, InvalidParameterValueException, InvalidParameterTypeException) as exc:
