@@ -400,10 +400,13 @@ def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: 
         "match time (ms)",
         "rectify time (ms)",
         "latency from stamp (s)",
+        "disparity age at publish (ms)",
+        "points2 age at publish (ms)",
         "dropped frames",
         "frames processed",
     ):
         assert key in values, key
+    assert float(values["disparity age at publish (ms)"]) > 0 and float(values["points2 age at publish (ms)"]) > 0
     good = next(_stamps)
     live["inputs"].publish(artl, good)
     live["disparity"].wait_stamp(good)

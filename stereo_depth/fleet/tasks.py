@@ -20,6 +20,7 @@ from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import TimeWindow
 from stereo_depth.core.matching import ONE_CORE_SGBM_MODES, create_matcher, min_image_size
 from stereo_depth.core.params import StereoParams
+from stereo_depth.core.threads import use_threads
 from stereo_depth.errors import StereoDepthError
 
 RECORD_KEY = "stereo_depth.process"  # metadata.yaml custom_data key holding what made the output
@@ -34,6 +35,7 @@ class Task:
     options: ProcessOptions
     shard: int = 0
     window: TimeWindow | None = None
+    threads: int = 0  # OpenCV / numba threads: the cores this task was given; 0 = as the process has them
 
 
 @dataclass
@@ -83,6 +85,8 @@ def warm_up(params: StereoParams) -> None:
 
 def run_task(task: Task) -> TaskResult:
     warm_up(task.params)
+    if task.threads:
+        use_threads(task.threads)  # after warm_up, which loads numba for census_sgm
     result = TaskResult(task.bag, task.shard)
     start = time.perf_counter()
     options = dataclasses.replace(task.options, window=task.window, progress=False)

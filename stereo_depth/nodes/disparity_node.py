@@ -22,7 +22,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = ((1, 0), (3, 2))
-    OPTIONS = INPUT_OPTIONS
+    OPTIONS = (*INPUT_OPTIONS, "cpu_threads")
     WITH_STEREO = True
 
     def __init__(self) -> None:
@@ -39,6 +39,7 @@ class DisparityNode(StereoIONode):
         start = time.perf_counter()
         for message in image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",)).values():
             self._disparity.publish(message)
+            self.published("disparity")
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}
 

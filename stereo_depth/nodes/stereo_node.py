@@ -7,9 +7,10 @@ defaults.
 Two worker stages form a pipeline: the first rectifies, matches and publishes the disparity (and the
 rectified image and confidence); the second turns that disparity into depth and points2 and publishes
 them, while the first already matches the next frame. So the disparity goes out without waiting for
-the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage keeps
-only the newest disparity too: one it could not start before a newer one arrived is dropped and
-counted ("dropped clouds" in diagnostics). With `matching_threads:=2` the first stage matches two
+the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage
+queues like the first (latest_worker.py: fewer waiting places as it falls behind, the newest only under
+overload, `max_latency_ms` honoured); a disparity whose cloud it drops is counted ("dropped clouds" in
+diagnostics). With `matching_threads:=2` the first stage matches two
 frames at once, for matchers that leave cores idle; a frame overtaken by a newer one is dropped,
 never published after it.
 """
@@ -36,8 +37,9 @@ from stereo_depth.frames import (
     image_outputs,
     result_geometry,
 )
+from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
-from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
+from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.settings import CAMERA_OPTIONS
 
@@ -85,6 +87,7 @@ class StereoNode(StereoIONode):
         "calibration_check",
         "calibration_check_every_n_frames",
         "matching_threads",
+        "cpu_threads",
     )
     WITH_STEREO = True
     MAX_FRAMES_AT_ONCE = 4
@@ -98,7 +101,9 @@ class StereoNode(StereoIONode):
         self._check_idle = threading.Event()
         self._check_idle.set()
         self._frames = 0
-        self._geometry = LatestWorker(self._geometry_stage, self.diagnostics.add_dropped_cloud)
+        options = self.parameters.settings.options
+        self._geometry = LatestWorker(self._geometry_stage, self.diagnostics.cloud_dropped, options.max_waiting_frames)
+        self._geometry.budget_s = options.max_latency_ms / 1000.0
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         assert self.pipeline is not None and settings.stereo is not None
@@ -119,17 +124,23 @@ class StereoNode(StereoIONode):
             )
             if not wanted:
                 return {**result.timings_ms, **stages}
-            self._geometry.submit((frame, result, stages, settings.output, wanted))
+            received_s = self._frame.received_s
+            self._geometry.submit((frame, result, stages, settings.output, wanted, received_s), received_s)
         return None
 
     def frames_at_once(self, settings: Settings) -> int:
         return settings.options.matching_threads
 
+    def _settings_changed(self, settings: Settings) -> None:
+        super()._settings_changed(settings)
+        self._geometry.capacity = settings.options.max_waiting_frames
+        self._geometry.budget_s = settings.options.max_latency_ms / 1000.0
+
     def _geometry_stage(
-        self, job: tuple[StereoFrame, StereoResult, dict[str, float], OutputOptions, frozenset[str]]
+        self, job: tuple[StereoFrame, StereoResult, dict[str, float], OutputOptions, frozenset[str], float]
     ) -> None:
         """Second stage: depth and points2 of a published disparity, then the frame is done."""
-        frame, result, stages, output, wanted = job
+        frame, result, stages, output, wanted, self._frame.received_s = job
 
         def work() -> None:
             assert self.pipeline is not None
@@ -174,6 +185,7 @@ class StereoNode(StereoIONode):
             start = time.perf_counter()
             self._output_publishers[name].publish(message)
             timed(stages, f"publish {name}", start)
+            self.published(name)
 
 
 def main(args: list[str] | None = None) -> int:
