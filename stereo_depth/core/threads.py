@@ -35,3 +35,12 @@ def use_threads(requested: int, sharing: int = 1) -> int:
             numba.set_num_threads(min(count, numba.config.NUMBA_NUM_THREADS))
         _applied.key = key
     return count
+
+
+def thread_counts() -> dict[str, int]:
+    """The threads OpenCV and (once loaded) numba use for work started on this thread."""
+    counts = {"opencv": cv2.getNumThreads()}
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        counts["numba"] = numba.get_num_threads()
+    return counts
