@@ -467,10 +467,10 @@ def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return statistics.median(numbers) if numbers else values[0]
 
     def merge(dicts: list[dict[str, Any]]) -> dict[str, Any]:
-        return {
-            k: merge([d[k] for d in dicts]) if isinstance(dicts[0][k], dict) else med([d[k] for d in dicts])
-            for k in dicts[0]
-        }
+        """Per key, over the runs that have it (a counter the node reported in one run only)."""
+        keys = dict.fromkeys(k for d in dicts for k in d)
+        values = {k: [d[k] for d in dicts if k in d] for k in keys}
+        return {k: merge(v) if isinstance(v[0], dict) else med(v) for k, v in values.items()}
 
     merged = merge([{k: v for k, v in r.items() if v is not None} for r in rows])
     merged["points2"] = merged.get("points2")
@@ -511,7 +511,7 @@ def print_anchor_comparison(rows: list[dict[str, Any]], anchor: dict[str, Any]) 
     case, then our runs of it per profile (32 B points: ROS 2's layout; 16 B: ROS 1's, the bytes the
     anchor publishes). dropped: frames without a disparity / without a points2."""
     print(
-        f"\n{'case (anchor name)':26s}{'':22s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
+        f"\n{'case (anchor name)':26s}{'':28s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
         f"{'disp lat ms':>12s}{'pts lat ms':>11s}{'CPU %':>7s}"
     )
     for name in dict.fromkeys(ANCHOR_NAMES[r["case"]] for r in rows if r["case"] in ANCHOR_NAMES):
@@ -522,7 +522,7 @@ def print_anchor_comparison(rows: list[dict[str, Any]], anchor: dict[str, Any]) 
         a_pl = f"{a['points2_lat_ms_median']:.1f}" if a.get("points2_lat_ms_median") else "-"
         a_drop = f"{a['disparity_dropped']:.0f}" + (f"/{a['points2_dropped']:.0f}" if a.get("points2_hz") else "")
         print(
-            f"{name:26s}{'C++ ROS 1 (16 B/pt)':22s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a_drop:>10s}"
+            f"{name:26s}{'C++ ROS 1 (16 B/pt)':28s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a_drop:>10s}"
             f"{a['disparity_lat_ms_median']:12.1f}{a_pl:>11s}{a['node_cpu_pct']:7.0f}"
         )
         for r in rows:
@@ -535,7 +535,7 @@ def print_anchor_comparison(rows: list[dict[str, Any]], anchor: dict[str, Any]) 
             pl = f"{p['lat_median']:.1f}" if p.get("lat_median") else "-"
             drop = f"{d['dropped']:.0f}" + (f"/{p['dropped']:.0f}" if p else "")
             print(
-                f"{'':26s}{label:22s}{d['hz']:8.1f}{pts:>8s}{drop:>10s}"
+                f"{'':26s}{label:28s}{d['hz']:8.1f}{pts:>8s}{drop:>10s}"
                 f"{d['lat_median']:12.1f}{pl:>11s}{r['node_cpu_pct']:7.0f}"
             )
 
@@ -631,6 +631,8 @@ def main() -> None:
                     if figures is not None:
                         anchor_runs.setdefault(anchor_name, []).append(figures)
                         print(f"{'anchor ' + anchor_name:26s}{'C++':>8s}" + anchor_text(figures), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"runs": all_runs, "anchor": anchor_runs}, indent=1))
     rows = [median_row(r) if len(r) > 1 else r[0] for r in runs.values() if r]
     if args.repeats > 1:
         print(f"\nmedians of {args.repeats} runs")
@@ -646,8 +648,6 @@ def main() -> None:
         if r["node_inputs"]:
             counts = ", ".join(f"{k.split('/')[-1]} {v}" for k, v in r["node_inputs"].items())
             print(f"{r['case']:26s}{r['profile']:>6s}  {counts}; bottleneck: {r['bottleneck']}")
-    if args.json:
-        args.json.write_text(json.dumps(all_runs, indent=1))
     if args.anchor is not None:
         print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
     elif args.anchor_summary.exists():
