@@ -11,6 +11,7 @@ work is spent on it.
 
 from __future__ import annotations
 
+import statistics
 import threading
 import time
 from collections import deque
@@ -37,7 +38,9 @@ class Load:
         return (len(self.arrivals) - 1) / (self.arrivals[-1] - self.arrivals[0])
 
     def job_s(self) -> float | None:
-        return sum(self.job_times) / len(self.job_times) if self.job_times else None
+        """The median: one job stalled by a busy machine is a hiccup the waiting places must ride out,
+        not a reason to take them away."""
+        return statistics.median(self.job_times) if self.job_times else None
 
     def waiting_places(self, capacity: int, parallel: int) -> int:
         """1 when jobs come faster than `parallel` threads finish them; up to `capacity` when the spare
