@@ -354,10 +354,10 @@ def test_a_latency_budget_no_frame_can_meet_drops_the_frames_unprocessed_and_cou
             counts = [n - b for n, b in zip(node_counters(live["diagnostics"], *keys), before, strict=True)]
             return counts if sum(counts[:3]) >= len(sent) else None
 
-        processed, dropped, dropped_clouds, too_late = wait_until(accounted, "every set processed or dropped")
+        processed, dropped, _, too_late = wait_until(accounted, "every set processed or dropped")
     finally:
         ros.set_parameters(fqn, max_latency_ms=0.0)
-    assert too_late >= 1 and dropped + dropped_clouds >= too_late
+    assert dropped >= 1 and too_late >= 1  # sets dropped before matching, as too late
     assert processed < len(sent)  # no more than the probes got through
 
 

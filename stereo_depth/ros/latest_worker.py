@@ -48,9 +48,7 @@ class Load:
         hz, job_s = self.arrival_hz(), self.job_s()
         if hz is None or job_s is None or job_s <= 0:
             return capacity
-        spare_hz = parallel / job_s - hz
-        if spare_hz <= 0:
-            return 1
+        spare_hz = parallel / job_s - hz  # negative: slower than the input, the newest set only
         return max(1, min(capacity, 1 + int(DRAIN_S * spare_hz)))
 
 
