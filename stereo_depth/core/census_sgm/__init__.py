@@ -13,9 +13,6 @@ The recipe is the standard CPU one (Zabih & Woodfill census, Hirschmueller SGM):
       -> gap closing: short consistent row gaps interpolated, occlusion-shaped gaps and the
          left-border strip given the background value beside them.
 
-Census is used rather than absolute differences because it is invariant to gain/offset changes
-between the cameras (Middlebury ``*_e``/``*_l`` variants, KITTI auto-exposure).
-
 One job per module: ``registry`` (numba kernels, compiled together on first use), ``census``,
 ``aggregation`` (Hamming costs, path sums and the selection they feed), ``postprocess`` (gap
 closing, median, speckles) and ``fill`` (``fill_holes``); ``census_sgm`` below runs them in order.
@@ -116,7 +113,7 @@ def compile_kernels() -> str:
 
     The first compile takes ~30 s per install, then each process loads machine code in well under
     a second: ``stereo-depth compile`` runs this at install time so a robot's first frame does not
-    wait. The cache sits in ``__pycache__`` beside this module when that is writable, else in
+    wait. The cache sits in ``__pycache__`` beside the kernel modules when that is writable, else in
     NUMBA_CACHE_DIR (or numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
