@@ -18,6 +18,11 @@ the same way, on the same kind of frames:
 A few warm-up frames (not counted) go first, so one-off start-up work (imports, numba cache, first
 allocation) is not billed to the stream. Every process it starts is stopped by PID.
 
+`--anchor` runs the C++ anchor (its run.sh: ROS 1 stereo_image_proc, rosbag play, a roscpp monitor; it
+installs Debian's ROS 1 packages on first use) once after each of our runs of a case it has, so the two
+interleave on a shared machine (ours, anchor, ours, anchor), and prints both side by side as medians.
+The anchor talks TCPROS: the Fast DDS profile does not apply to it, so its row stands beside both of ours.
+
 All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default 15). `--profiles all`
 exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in all three; `none` in none, as a
 new user runs it (stereo_node then loads it for itself, see stereo_depth/ros/transport.py).
@@ -25,6 +30,8 @@ new user runs it (stereo_node then loads it for itself, see stereo_depth/ros/tra
     .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
     .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
     .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
+    .venv/bin/python bench/e2e_dds.py --anchor --repeats 3 --profiles none all \
+        --cases bm_vga_30 bm_vga_30_disparity_only     # the C++ chain interleaved with ours
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import signal
 import statistics
 import subprocess
@@ -118,6 +126,41 @@ ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
     "bm_720p_30": "bm hd720 1x",
     "bm_720p_30_16b": "bm hd720 1x",
 }
+
+
+ANCHOR_RUN = Path("shared/anchors/ros1_stereo_image_proc/run.sh")  # under a folder above this repository
+
+
+def find_anchor() -> Path | None:
+    return next((p / ANCHOR_RUN for p in REPO.parents if (p / ANCHOR_RUN).is_file()), None)
+
+
+def machine_line() -> str:
+    """CPU model, widest SIMD level its flags offer, cores: what every figure here depends on."""
+    info = Path("/proc/cpuinfo").read_text()
+    model = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")), "?")
+    flags = set(next((ln.split(":", 1)[1].split() for ln in info.splitlines() if ln.startswith("flags")), []))
+    levels = (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX"), ("sse4_2", "SSE4.2"), ("asimd", "NEON"))
+    simd = next((name for flag, name in levels if flag in flags), platform.machine())
+    return f"CPU {model}, SIMD {simd}, {os.cpu_count()} cores"
+
+
+def run_anchor(run_sh: Path, name: str, args: argparse.Namespace, workdir: Path) -> dict[str, Any] | None:
+    """One run of one anchor case (run.sh with REPEATS=1); its summary figures, None if it failed."""
+    env = dict(os.environ, WORK=str(args.anchor_work), REPEATS="1", FRAMES=str(args.frames))
+    env.update(CASES=name.replace(" ", "_"), HD="1" if "hd720" in name else "0")
+    env.update(ROS_PORT=str(11311 + 100 + int(args.domain_id)))  # apart from other users' masters
+    env["SKIP_INSTALL"] = "1" if (args.anchor_work / "sip_monitor").exists() else "0"
+    log = workdir / f"anchor.{name.replace(' ', '_')}.log"
+    with log.open("ab") as out:
+        code = subprocess.call(["bash", str(run_sh)], env=env, stdout=out, stderr=subprocess.STDOUT)
+    summary = args.anchor_work / "summary.json"
+    if code != 0 or not summary.exists():
+        print(f"anchor {name}: run.sh failed ({code}), see {log}", flush=True)
+        return None
+    figures: dict[str, Any] | None = json.loads(summary.read_text()).get(name)
+    summary.unlink()
+    return figures
 
 
 def ros_env(domain_id: str, shm_profile: bool) -> dict[str, str]:
@@ -425,10 +468,10 @@ def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return statistics.median(numbers) if numbers else values[0]
 
     def merge(dicts: list[dict[str, Any]]) -> dict[str, Any]:
-        return {
-            k: merge([d[k] for d in dicts]) if isinstance(dicts[0][k], dict) else med([d[k] for d in dicts])
-            for k in dicts[0]
-        }
+        """Per key, over the runs that have it (a counter the node reported in one run only)."""
+        keys = dict.fromkeys(k for d in dicts for k in d)
+        values = {k: [d[k] for d in dicts if k in d] for k in keys}
+        return {k: merge(v) if isinstance(v[0], dict) else med(v) for k, v in values.items()}
 
     merged = merge([{k: v for k, v in r.items() if v is not None} for r in rows])
     merged["points2"] = merged.get("points2")
@@ -464,16 +507,14 @@ def print_row(r: dict[str, Any]) -> None:
     )
 
 
-def print_anchor_comparison(rows: list[dict[str, Any]], anchor_file: Path) -> None:
-    """Side by side with the anchor's summary.json (written by its run.sh): each anchor case, then our
-    runs of it (32 B points: ROS 2's layout; 16 B: ROS 1's, the bytes the anchor publishes).
-    dropped: frames without a disparity / without a points2."""
-    anchor = json.loads(anchor_file.read_text())
+def print_anchor_comparison(rows: list[dict[str, Any]], anchor: dict[str, Any]) -> None:
+    """Side by side with the anchor (its summary.json, or its runs interleaved with ours): each anchor
+    case, then our runs of it per profile (32 B points: ROS 2's layout; 16 B: ROS 1's, the bytes the
+    anchor publishes). dropped: frames without a disparity / without a points2."""
     print(
-        f"\n{'case (anchor name)':26s}{'':22s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
+        f"\n{'case (anchor name)':26s}{'':28s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>10s}"
         f"{'disp lat ms':>12s}{'pts lat ms':>11s}{'CPU %':>7s}"
     )
-    rows = [r for r in rows if r["profile"] == "all"]  # the anchor ran with its transport tuned too
     for name in dict.fromkeys(ANCHOR_NAMES[r["case"]] for r in rows if r["case"] in ANCHOR_NAMES):
         a = anchor.get(name)
         if a is None:
@@ -482,19 +523,20 @@ def print_anchor_comparison(rows: list[dict[str, Any]], anchor_file: Path) -> No
         a_pl = f"{a['points2_lat_ms_median']:.1f}" if a.get("points2_lat_ms_median") else "-"
         a_drop = f"{a['disparity_dropped']:.0f}" + (f"/{a['points2_dropped']:.0f}" if a.get("points2_hz") else "")
         print(
-            f"{name:26s}{'C++ ROS 1 (16 B/pt)':22s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a_drop:>10s}"
+            f"{name:26s}{'C++ ROS 1 (16 B/pt)':28s}{a['disparity_hz']:8.1f}{a_pts:>8s}{a_drop:>10s}"
             f"{a['disparity_lat_ms_median']:12.1f}{a_pl:>11s}{a['node_cpu_pct']:7.0f}"
         )
         for r in rows:
             if ANCHOR_NAMES.get(r["case"]) != name:
                 continue
             d, p = r["disparity"], r["points2"] or {}
-            label = "stereo_node" + ("" if not r["points2"] else " (16 B/pt)" if "16b" in r["case"] else " (32 B/pt)")
+            label = "ours" + ("" if not r["points2"] else " 16 B/pt" if "16b" in r["case"] else " 32 B/pt")
+            label += f", profile {r['profile']}"
             pts = f"{p['hz']:.1f}" if p else "-"
             pl = f"{p['lat_median']:.1f}" if p.get("lat_median") else "-"
             drop = f"{d['dropped']:.0f}" + (f"/{p['dropped']:.0f}" if p else "")
             print(
-                f"{'':26s}{label:22s}{d['hz']:8.1f}{pts:>8s}{drop:>10s}"
+                f"{'':26s}{label:28s}{d['hz']:8.1f}{pts:>8s}{drop:>10s}"
                 f"{d['lat_median']:12.1f}{pl:>11s}{r['node_cpu_pct']:7.0f}"
             )
 
@@ -535,8 +577,17 @@ def main() -> None:
     parser.add_argument(
         "--anchor",
         type=Path,
+        nargs="?",
+        const=find_anchor(),
+        help="run the C++ anchor's run.sh (default: shared/anchors/... above this repository) after each of "
+        "our runs of a case it has, and print both side by side",
+    )
+    parser.add_argument("--anchor-work", type=Path, default=Path("/tmp/sip_anchor"), help="the anchor's WORK folder")
+    parser.add_argument(
+        "--anchor-summary",
+        type=Path,
         default=Path("/tmp/sip_anchor/summary.json"),
-        help="the anchor's summary.json, printed side by side when it exists",
+        help="without --anchor: an earlier anchor summary.json, printed side by side when it exists",
     )
     parser.add_argument("--json", type=Path, help="write every run's figures here")
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
@@ -550,7 +601,10 @@ def main() -> None:
         return
     if args.pairing:
         args.cases, args.profiles = PAIRING, ["none", "all"]
+    if "--anchor" in sys.argv and args.anchor is None:
+        parser.error("--anchor: no shared/anchors/ros1_stereo_image_proc/run.sh above this repository; name it")
     load = Path("/proc/loadavg").read_text().split()[:3]
+    print(machine_line(), flush=True)
     print(
         f"stereo_node end to end over DDS: {args.frames} frames per case, {os.cpu_count()} cores, "
         f"load before {' '.join(load)}, ROS_DOMAIN_ID {args.domain_id}, "
@@ -558,17 +612,35 @@ def main() -> None:
         flush=True,
     )
     all_runs: list[dict[str, Any]] = []
-    rows = []
+    runs: dict[tuple[str, str], list[dict[str, Any]]] = {(n, p): [] for p in args.profiles for n in args.cases}
+    anchor_runs: dict[str, list[dict[str, Any]]] = {}
     print_header()
     with tempfile.TemporaryDirectory(prefix="e2e_dds_") as tmp:
         logdir = args.logdir or Path(tmp)
         logdir.mkdir(parents=True, exist_ok=True)
-        for profile in args.profiles:
+        # repeats outermost and the anchor after each case: the runs interleave, so a load that comes and
+        # goes on a shared machine falls on both
+        for _ in range(args.repeats):
             for name in args.cases:
-                runs = [run_case(CASES[name], args, logdir, profile == "all") for _ in range(args.repeats)]
-                all_runs += runs
-                rows.append(median_row(runs) if len(runs) > 1 else runs[0])
-                print_row(rows[-1])
+                for profile in args.profiles:
+                    run = run_case(CASES[name], args, logdir, profile == "all")
+                    runs[(name, profile)].append(run)
+                    all_runs.append(run)
+                    print_row(run)
+                anchor_name = ANCHOR_NAMES.get(name)
+                if args.anchor is not None and anchor_name is not None:
+                    figures = run_anchor(args.anchor, anchor_name, args, logdir)
+                    if figures is not None:
+                        anchor_runs.setdefault(anchor_name, []).append(figures)
+                        print(f"{'anchor ' + anchor_name:26s}{'C++':>8s}" + anchor_text(figures), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"runs": all_runs, "anchor": anchor_runs}, indent=1))
+    rows = [median_row(r) if len(r) > 1 else r[0] for r in runs.values() if r]
+    if args.repeats > 1:
+        print(f"\nmedians of {args.repeats} runs")
+        print_header()
+        for row in rows:
+            print_row(row)
     print("diag: the node's own 'dropped frames', warm-up frames included (a few wait for start-up work)")
     print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
     for r in rows:
@@ -578,10 +650,28 @@ def main() -> None:
         if r["node_inputs"]:
             counts = ", ".join(f"{k.split('/')[-1]} {v}" for k, v in r["node_inputs"].items())
             print(f"{r['case']:26s}{r['profile']:>6s}  {counts}; bottleneck: {r['bottleneck']}")
-    if args.json:
-        args.json.write_text(json.dumps(all_runs, indent=1))
-    if args.anchor.exists():
-        print_anchor_comparison(rows, args.anchor)
+    if args.anchor is not None:
+        print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
+    elif args.anchor_summary.exists():
+        print_anchor_comparison(rows, json.loads(args.anchor_summary.read_text()))
+
+
+def anchor_text(a: dict[str, Any]) -> str:
+    points = f"{a['points2_hz']:.1f}" if a.get("points2_hz") else "-"
+    lat = f"{a['disparity_lat_ms_median']:.0f}" + (
+        f" / {a['points2_lat_ms_median']:.0f}" if a.get("points2_lat_ms_median") else ""
+    )
+    return f"{a['disparity_hz']:8.1f}{points:>8s}{a['disparity_dropped']:9.0f}{'':6s}  latency from input {lat} ms"
+
+
+def median_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median of each of the anchor's figures over its runs."""
+    out: dict[str, Any] = {}
+    for key, value in runs[0].items():
+        numbers = [r[key] for r in runs if isinstance(r.get(key), (int, float))]
+        out[key] = statistics.median(numbers) if numbers and isinstance(value, (int, float)) else value
+    out["runs"] = len(runs)
+    return out
 
 
 if __name__ == "__main__":

@@ -155,11 +155,27 @@ class NodeOptions:
     )
     max_waiting_frames: int = option(
         3,
-        "Complete input sets kept while one is processed; one more drops the oldest (counted in "
-        "diagnostics). 3: no frame lost to DDS delivering large images in bursts or to a busy machine's "
-        "hiccups; 1: always the newest, lowest latency",
+        "Most complete input sets kept while one is processed; one more drops the oldest (counted in "
+        "diagnostics). Fewer wait as the node falls behind, only the newest under sustained overload. 3: "
+        "no frame lost to DDS delivering large images in bursts or to a busy machine's hiccups; 1: always "
+        "the newest, lowest latency",
         1,
         100,
+        1,
+    )
+    max_latency_ms: float = option(
+        0.0,
+        "Budget from an input's receipt to its outputs, ms: a set that would be out later is dropped "
+        "before work is spent on it (counted in diagnostics). 0: no budget",
+        0.0,
+        10000.0,
+    )
+    cpu_threads: int = option(
+        0,
+        "OpenCV and numba threads for one frame's matching; 0: this process's cores, shared among the "
+        "frames matched at once (matching_threads)",
+        0,
+        256,
         1,
     )
     matching_threads: int = option(
@@ -210,7 +226,14 @@ OPTION_CLASSES = (StereoParams, OutputOptions, NodeOptions)
 
 # Which options each node declares, by role.
 SYNC_OPTIONS = ("queue_size", "approximate_sync", "approximate_sync_tolerance_seconds")
-INPUT_OPTIONS = (*SYNC_OPTIONS, "use_system_default_qos", "input_reliability", "max_waiting_frames", "max_image_pixels")
+INPUT_OPTIONS = (
+    *SYNC_OPTIONS,
+    "use_system_default_qos",
+    "input_reliability",
+    "max_waiting_frames",
+    "max_latency_ms",
+    "max_image_pixels",
+)
 # what shapes points2 (stereo_node, point_cloud_node); stereo_node also declares depth_encoding
 CLOUD_OPTIONS = (
     "use_color",

@@ -146,10 +146,10 @@ def test_close_gaps_interpolates_short_consistent_runs_only() -> None:
 
 def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
     """Run just the gap-closing stage (the kernel ``census_sgm`` calls) with its default settings."""
-    from stereo_depth.core import census_sgm as module
+    from stereo_depth.core.census_sgm import aggregation, postprocess, registry
 
-    module._kernels()
-    coded = np.where(np.isnan(disp), module._HOLE, disp).astype(np.float32)
+    registry.compile_all()
+    coded = np.where(np.isnan(disp), aggregation.HOLE, disp).astype(np.float32)
     gaps = (
         GAPS["gap_max"],
         np.float32(GAPS["gap_tol"]),
@@ -157,7 +157,7 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
         GAPS["border_margin"],
         np.float32(GAPS["gap_confidence"]),
     )
-    return module._finish(coded, np.zeros_like(coded), module._HOLE, gaps)
+    return postprocess._finish(coded, np.zeros_like(coded), aggregation.HOLE, gaps)
 
 
 @pytest.mark.parametrize(
@@ -265,4 +265,4 @@ def test_compile_command_builds_the_core_ahead_and_names_its_cache(capsys: pytes
 
     assert main(["compile"]) == 0
     cache = capsys.readouterr().out.strip().rsplit("numba cache: ", 1)[1]
-    assert any(Path(cache).glob("census_sgm._sweep-*.nbc")), "the sweep kernel's machine code must be cached"
+    assert any(Path(cache).glob("aggregation._sweep-*.nbc")), "the sweep kernel's machine code must be cached"

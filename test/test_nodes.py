@@ -346,6 +346,40 @@ def test_burst_into_two_matching_threads_keeps_input_order_and_counts_every_set(
         ros.set_parameters(fqn, matching_threads=1, sgbm_mode=2)
 
 
+def test_a_latency_budget_no_frame_can_meet_drops_the_frames_unprocessed_and_counts_them(
+    ros: RosHarness, live: dict[str, Any], euroc: Pair
+) -> None:
+    """max_latency_ms below the time one frame takes: sets are dropped before matching and counted as
+    too late; one a second still runs, so the node notices when the machine becomes fast enough."""
+    fqn = "/live/stereo_node"
+    keys = (
+        "frames processed",
+        "dropped frames",
+        "dropped clouds (depth, points2)",
+        "dropped as too late for max_latency_ms (frames and clouds)",
+    )
+    warm = next(_stamps)
+    live["inputs"].publish(euroc, warm)  # the time per frame is measured
+    live["points2"].wait_stamp(warm)
+    assert all(r.successful for r in ros.set_parameters(fqn, max_latency_ms=0.01))
+    try:
+        before = node_counters(live["diagnostics"], *keys)
+        sent = [next(_stamps) for _ in range(6)]
+        for stamp in sent:
+            live["inputs"].publish(euroc, stamp)
+            time.sleep(0.05)
+
+        def accounted() -> list[int] | None:
+            counts = [n - b for n, b in zip(node_counters(live["diagnostics"], *keys), before, strict=True)]
+            return counts if sum(counts[:3]) >= len(sent) else None
+
+        processed, dropped, _, too_late = wait_until(accounted, "every set processed or dropped")
+    finally:
+        ros.set_parameters(fqn, max_latency_ms=0.0)
+    assert dropped >= 1 and too_late >= 1  # sets dropped before matching, as too late
+    assert processed < len(sent)  # no more than the probes got through
+
+
 def node_counters(diagnostics: Any, *keys: str) -> list[int]:
     """The node's counters in a report that came after this call (0 for a counter not reported yet)."""
     seen = len(diagnostics.messages)
@@ -419,10 +453,13 @@ def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: 
         "match time (ms)",
         "rectify time (ms)",
         "latency from stamp (s)",
+        "disparity age at publish (ms)",
+        "points2 age at publish (ms)",
         "dropped frames",
         "frames processed",
     ):
         assert key in values, key
+    assert float(values["disparity age at publish (ms)"]) > 0 and float(values["points2 age at publish (ms)"]) > 0
     good = next(_stamps)
     live["inputs"].publish(artl, good)
     live["disparity"].wait_stamp(good)

@@ -7,6 +7,7 @@ only when chosen: it is an optional dependency.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import multiprocessing
 import os
@@ -17,6 +18,7 @@ from multiprocessing.context import SpawnContext
 from typing import Any, Protocol, cast
 
 from stereo_depth.core.params import StereoParams
+from stereo_depth.core.threads import available_cores
 from stereo_depth.errors import StereoDepthError
 from stereo_depth.fleet.tasks import Task, TaskResult, matcher_cores, run_task, warm_up
 
@@ -48,13 +50,15 @@ def _stop_worker(signum: int, frame: object) -> None:
     os._exit(0)
 
 
-def _serve(connection: Connection, params: StereoParams) -> None:
+def _serve(connection: Connection, params: StereoParams, threads: int) -> None:
     """A worker process: tasks in, results out over its own pipe, until the driver closes it.
 
     One pipe per worker and no lock shared between processes, so stopping a worker at any moment
     cannot leave the driver waiting (multiprocessing.Pool.terminate can hang on a lock an idle
-    worker held)."""
+    worker held). numba starts no more threads than the worker's share of the cores (it reads
+    NUMBA_NUM_THREADS once, when loaded); each task sets OpenCV's and numba's counts to that share."""
     global _running  # one flag per worker process, read by its signal handler
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the driver alone handles Ctrl-C and stops the workers
     signal.signal(signal.SIGTERM, _stop_worker)
     warm_up(params)
@@ -73,16 +77,16 @@ def _serve(connection: Connection, params: StereoParams) -> None:
 
 
 class _Worker:
-    def __init__(self, context: SpawnContext, params: StereoParams) -> None:
+    def __init__(self, context: SpawnContext, params: StereoParams, threads: int) -> None:
         self.connection, there = context.Pipe()
-        self.process = context.Process(target=_serve, args=(there, params), daemon=True)
+        self.process = context.Process(target=_serve, args=(there, params, threads), daemon=True)
         self.process.start()
         there.close()
         self.task: Task | None = None
 
-    def submit(self, task: Task) -> None:
+    def submit(self, task: Task, threads: int) -> None:
         self.task = task
-        self.connection.send(task)
+        self.connection.send(dataclasses.replace(task, threads=threads))
 
     def result(self) -> TaskResult:
         """The finished task's result; a dead worker (killed, out of memory) fails only its own task."""
@@ -105,7 +109,8 @@ class _Worker:
 
 
 class LocalPool:
-    """`--jobs N`: N worker processes (spawned: no forked OpenCV or numba threads), each warmed once."""
+    """`--jobs N`: N worker processes (spawned: no forked OpenCV or numba threads), each warmed once and
+    each matching on its share of this process's cores."""
 
     def __init__(self, jobs: int) -> None:
         self.jobs = jobs
@@ -115,10 +120,12 @@ class LocalPool:
             return
         context = multiprocessing.get_context("spawn")
         params, waiting = tasks[0].params, list(reversed(tasks))
-        workers = [_Worker(context, params) for _ in range(min(self.jobs, len(tasks)))]
+        count = min(self.jobs, len(tasks))
+        share = max(1, available_cores() // count)
+        workers = [_Worker(context, params, share) for _ in range(count)]
         try:
             for worker in workers:
-                worker.submit(waiting.pop())
+                worker.submit(waiting.pop(), share)
             busy = {worker.connection: worker for worker in workers}
             while busy:
                 for ready in wait(list(busy)):
@@ -129,9 +136,9 @@ class LocalPool:
                         if not worker.process.is_alive():  # it died: a fresh one takes the next task
                             workers.remove(worker)
                             worker.stop(0)
-                            worker = _Worker(context, params)
+                            worker = _Worker(context, params, share)
                             workers.append(worker)
-                        worker.submit(waiting.pop())
+                        worker.submit(waiting.pop(), share)
                         busy[worker.connection] = worker
                     yield result
         finally:
@@ -149,7 +156,8 @@ def import_ray() -> Any:
 
 
 class RayBackend:
-    """`--ray [ADDRESS]`: every task a Ray task asking for the cores its matcher uses. No address
+    """`--ray [ADDRESS]`: every task a Ray task asking for the cores its matcher uses, and matching on
+    as many OpenCV / numba threads. No address
     starts a local Ray instance; `auto` or `ray://host:port` joins a running cluster, whose workers
     must reach the inputs and the output folder at the same paths (a shared file system)."""
 
@@ -172,8 +180,9 @@ class RayBackend:
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 msg = f"cannot start or join Ray at {self.address or 'a new local instance'}: {exc}"
                 raise StereoDepthError(msg) from exc
-        remote = ray.remote(num_cpus=matcher_cores(tasks[0].params), max_retries=0)(run_task)
-        task_of = {remote.remote(task): task for task in tasks}
+        cores = matcher_cores(tasks[0].params)
+        remote = ray.remote(num_cpus=cores, max_retries=0)(run_task)
+        task_of = {remote.remote(dataclasses.replace(task, threads=cores)): task for task in tasks}
         pending = list(task_of)
         try:
             while pending:

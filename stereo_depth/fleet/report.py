@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -23,6 +23,7 @@ class BagReport:
     seconds: float = 0.0  # processing time summed over the bag's tasks
     frames_per_second: float = 0.0
     error: str | None = None
+    threads: dict[str, int] = field(default_factory=dict)  # OpenCV / numba threads of its worker
 
 
 class ProgressLine:

@@ -117,6 +117,7 @@ class FleetRun:
                 plan.report.frames_in += result.frames_in
                 plan.report.frames_out += result.frames_out
                 plan.report.seconds += result.seconds
+                plan.report.threads = result.threads
                 if plan.finished:
                     self._finish(plan)
                 progress.update(self.reports)

@@ -11,7 +11,7 @@ import dataclasses
 import functools
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import TimeWindow
 from stereo_depth.core.matching import ONE_CORE_SGBM_MODES, create_matcher, min_image_size
 from stereo_depth.core.params import StereoParams
+from stereo_depth.core.threads import thread_counts, use_threads
 from stereo_depth.errors import StereoDepthError
 
 RECORD_KEY = "stereo_depth.process"  # metadata.yaml custom_data key holding what made the output
@@ -34,6 +35,7 @@ class Task:
     options: ProcessOptions
     shard: int = 0
     window: TimeWindow | None = None
+    threads: int = 0  # OpenCV / numba threads: the cores this task was given; 0 = as the process has them
 
 
 @dataclass
@@ -46,6 +48,7 @@ class TaskResult:
     error: str | None = None
     first_ns: int | None = None
     handoff_ns: int | None = None
+    threads: dict[str, int] = field(default_factory=dict)  # what OpenCV and numba matched with
 
 
 def matcher_cores(params: StereoParams) -> int:
@@ -83,6 +86,8 @@ def warm_up(params: StereoParams) -> None:
 
 def run_task(task: Task) -> TaskResult:
     warm_up(task.params)
+    if task.threads:
+        use_threads(task.threads)  # after warm_up, which loads numba for census_sgm
     result = TaskResult(task.bag, task.shard)
     start = time.perf_counter()
     options = dataclasses.replace(task.options, window=task.window, progress=False)
@@ -94,4 +99,5 @@ def run_task(task: Task) -> TaskResult:
         result.frames_in, result.frames_out = summary.left_images, summary.frames_out
         result.first_ns, result.handoff_ns = summary.read.first_ns, summary.read.handoff_ns
     result.seconds = time.perf_counter() - start
+    result.threads = thread_counts()
     return result

@@ -23,7 +23,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
-    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS)
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, "cpu_threads")
     WITH_STEREO = True
 
     def __init__(self) -> None:
@@ -42,6 +42,7 @@ class DisparityNode(StereoIONode):
         start = time.perf_counter()
         for message in image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",)).values():
             self._disparity.publish(message)
+            self.published("disparity")
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}
 

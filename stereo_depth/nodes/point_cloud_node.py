@@ -71,6 +71,7 @@ class PointCloudNode(StereoIONode):
         timed(stages, "points", start)
         start = time.perf_counter()
         self._points.publish(cloud["points2"])
+        self.published("points2")
         timed(stages, "publish", start)
         return stages
 

@@ -46,6 +46,7 @@ class RectifyNode(StereoIONode):
         timed(stages, "rectify", start)
         start = time.perf_counter()
         self._rect.publish(array_to_image(RCLPY_TYPES, image_msg.header, rectified))
+        self.published("image_rect")
         timed(stages, "publish", start)
         return stages
 

@@ -7,9 +7,10 @@ defaults.
 Two worker stages form a pipeline: the first rectifies, matches and publishes the disparity (and the
 rectified image and confidence); the second turns that disparity into depth and points2 and publishes
 them, while the first already matches the next frame. So the disparity goes out without waiting for
-the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage keeps
-only the newest disparity too: one it could not start before a newer one arrived is dropped and
-counted ("dropped clouds" in diagnostics). With `matching_threads:=2` the first stage matches two
+the cloud, and a frame costs the longer of the two stages instead of their sum. The second stage
+queues like the first (latest_worker.py: fewer waiting places as it falls behind, the newest only under
+overload, `max_latency_ms` honoured); a disparity whose cloud it drops is counted ("dropped clouds" in
+diagnostics). With `matching_threads:=2` the first stage matches two
 frames at once, for matchers that leave cores idle; a frame overtaken by a newer one is dropped,
 never published after it.
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -35,7 +37,8 @@ from stereo_depth.options import (
     NodeOptions,
     Settings,
 )
-from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
+from stereo_depth.ros.latest_worker import LatestWorker
+from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
 
@@ -94,6 +97,7 @@ class StereoNode(StereoIONode):
         "calibration_check",
         "calibration_check_every_n_frames",
         "matching_threads",
+        "cpu_threads",
     )
     WITH_STEREO = True
     MAX_FRAMES_AT_ONCE = 4
@@ -112,7 +116,12 @@ class StereoNode(StereoIONode):
         self._check_idle = threading.Event()
         self._check_idle.set()
         self._frames = 0
-        self._cloud_stage = LatestWorker(self.guarded, self.diagnostics.add_dropped_cloud)  # runs frames' cloud stage
+        options = self.parameters.settings.options
+        # runs frames' cloud stage (frame_outputs), queued like the first stage
+        self._cloud_stage = LatestWorker(
+            self._run_cloud_stage, self.diagnostics.cloud_dropped, options.max_waiting_frames
+        )
+        self._cloud_stage.budget_s = options.max_latency_ms / 1000.0
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         """First stage: decode and match (several frames at once with matching_threads); then, in input
@@ -149,12 +158,27 @@ class StereoNode(StereoIONode):
                     self._state,
                     publish_images,
                     publish_cloud,
-                    run_cloud_stage=self._cloud_stage.submit,
+                    run_cloud_stage=self._queue_cloud_stage,
                 )
         return None
 
     def frames_at_once(self, settings: Settings) -> int:
         return settings.options.matching_threads
+
+    def _queue_cloud_stage(self, stage: Callable[[], None]) -> None:
+        received_s = self._frame.received_s  # the frame's receipt, for its outputs' age and latency budget
+        self._cloud_stage.submit((stage, received_s), received_s)
+
+    def _run_cloud_stage(self, job: tuple[Callable[[], None], float]) -> None:
+        stage, self._frame.received_s = job
+        self.guarded(stage)
+
+    def _settings_changed(self, settings: Settings) -> None:
+        super()._settings_changed(settings)
+        cloud_stage = getattr(self, "_cloud_stage", None)  # None before a lifecycle node's first activate
+        if cloud_stage is not None:
+            cloud_stage.capacity = settings.options.max_waiting_frames
+            cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0
 
     def _maybe_check_calibration(self, stamp_ns: int, result: StereoResult, options: NodeOptions) -> None:
         self._frames += 1
@@ -188,6 +212,7 @@ class StereoNode(StereoIONode):
             start = time.perf_counter()
             self._output_publishers[name].publish(message)
             timed(stages, f"publish {name}", start)
+            self.published(name)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -75,7 +75,9 @@ class NodeDiagnostics:
         self._outputs: deque[float] = deque(maxlen=WINDOW)
         self._stage_ms: dict[str, deque[float]] = {}  # the last RECENT_FRAMES frames
         self._latency_s: deque[float] = deque(maxlen=RECENT_FRAMES)
+        self._age_s: dict[str, deque[float]] = {}  # per output: its age at publish, from the input's receipt
         self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
+        self.dropped_late = 0  # of those, sets that could not be out within max_latency_ms
         self.dropped_clouds = 0  # disparities published whose depth / points2 a newer frame replaced
         self.unmatched = 0  # messages the synchronizer discarded (no partner, queue overflow, stale)
         self.calibration_unknown = 0  # sets dropped: no camera_info yet, or it changed where one was lost
@@ -151,9 +153,20 @@ class NodeDiagnostics:
         with self._lock:
             self.dropped += count
 
-    def add_dropped_cloud(self) -> None:
+    def frame_dropped(self, late: bool) -> None:
+        """A set the worker never processed: replaced by newer ones, or `late` for max_latency_ms."""
+        with self._lock:
+            self.dropped += 1
+            self.dropped_late += late
+
+    def cloud_dropped(self, late: bool) -> None:
         with self._lock:
             self.dropped_clouds += 1
+            self.dropped_late += late
+
+    def output_age(self, output: str, age_s: float) -> None:
+        with self._lock:
+            self._age_s.setdefault(output, deque(maxlen=RECENT_FRAMES)).append(age_s)
 
     def error(self, text: str) -> None:
         with self._lock:
@@ -217,9 +230,12 @@ class NodeDiagnostics:
                 values.append((f"{stage} time (ms)", f"{sum(samples) / len(samples):.2f}"))
         if self._latency_s:
             values.append(("latency from stamp (s)", f"{sum(self._latency_s) / len(self._latency_s):.3f}"))
+        for output, ages in sorted(self._age_s.items()):
+            values.append((f"{output} age at publish (ms)", f"{1000.0 * sum(ages) / len(ages):.1f}"))
         values.append(("frames processed", str(self.processed)))
         values.append(("dropped frames", str(self.dropped)))
         values.append(("dropped clouds (depth, points2)", str(self.dropped_clouds)))
+        values.append(("dropped as too late for max_latency_ms (frames and clouds)", str(self.dropped_late)))
         values.append(("unmatched input messages", str(self.unmatched)))
         values.append(
             ("sets without calibration (none yet, or it changed where one was lost)", str(self.calibration_unknown))

@@ -1,11 +1,13 @@
 """What the nodes share: inputs -> synchronizer -> bounded worker -> outputs, plus `main()`.
 
 Subscription callbacks only stamp, count and pair messages; the work runs on a worker thread that
-takes complete sets oldest first from a short queue (`max_waiting_frames`). When frames arrive faster
-than they can be processed the oldest waiting set is dropped (and counted), so latency stays bounded
-instead of a backlog growing; the few waiting places absorb a busy machine's scheduling hiccups, which
-a single slot turns into lost frames even at a rate the node easily sustains. A node may process
-several sets at once (`frames_at_once`); its outputs still leave in input order.
+takes complete sets oldest first from a short queue (latest_worker.py: at most `max_waiting_frames`,
+fewer as the node falls behind, newest only under sustained overload; `max_latency_ms` drops a set
+that could not be out in time). Dropped sets are counted, so latency stays bounded instead of a
+backlog growing; the waiting places absorb a busy machine's scheduling hiccups, which a single slot
+turns into lost frames even at a rate the node easily sustains. A node may process several sets at
+once (`frames_at_once`); its outputs still leave in input order. Diagnostics report each output's age
+at publish, from the receipt of the set's first input.
 OpenCV releases the GIL, so the executor keeps receiving while a frame is processed.
 """
 
@@ -14,7 +16,6 @@ from __future__ import annotations
 import itertools
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
@@ -36,12 +37,14 @@ from sensor_msgs.msg import CompressedImage
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
+from stereo_depth.core.threads import use_threads
 from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
 from stereo_depth.frames import InputNames, StereoFrame, camera_fixes, decode_frame, decode_image, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
 from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
+from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos, override_errors, unused_overrides_line
@@ -56,61 +59,7 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 # to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
 IDLE_FLUSH_S = 5.0
 SIGNAL_POLL_S = 0.25  # the longest a SIGINT / SIGTERM waits for the spin to return to Python
-
-
-class LatestWorker:
-    """Runs jobs on `threads` threads, oldest first, at most `parallel` at once; at most `capacity`
-    wait, and one more replaces the oldest waiting job (`on_replaced`). Capacity 1: always the newest
-    job. Both limits are read as jobs come and go, so a parameter change applies to the next job."""
-
-    def __init__(
-        self, run: Callable[[Any], None], on_replaced: Callable[[], None], capacity: int = 1, threads: int = 1
-    ) -> None:
-        self._run = run
-        self._on_replaced = on_replaced
-        self.capacity = capacity
-        self.parallel = 1
-        self._running = 0
-        self._cond = threading.Condition()
-        self._pending: deque[Any] = deque()
-        self._stopped = False
-        self._threads = [
-            threading.Thread(target=self._loop, name=f"stereo_depth-worker-{i}", daemon=True) for i in range(threads)
-        ]
-        for thread in self._threads:
-            thread.start()
-
-    def submit(self, job: Any) -> None:
-        with self._cond:
-            while len(self._pending) >= max(self.capacity, 1):
-                self._pending.popleft()
-                self._on_replaced()
-            self._pending.append(job)
-            self._cond.notify_all()
-
-    def stop(self) -> None:
-        """Let the running jobs finish, discard the waiting ones, end the threads."""
-        with self._cond:
-            self._stopped = True
-            self._pending.clear()
-            self._cond.notify_all()
-        for thread in self._threads:
-            thread.join(timeout=30.0)
-
-    def _loop(self) -> None:
-        while True:
-            with self._cond:
-                self._cond.wait_for(lambda: self._stopped or (bool(self._pending) and self._running < self.parallel))
-                if self._stopped:
-                    return
-                job = self._pending.popleft()
-                self._running += 1
-            try:
-                self._run(job)
-            finally:
-                with self._cond:
-                    self._running -= 1
-                    self._cond.notify_all()
+RECEIPTS_KEPT = 64  # receipt times of the first input's newest messages, looked up when their set is complete
 
 
 class StereoIONode(Node):
@@ -148,6 +97,7 @@ class StereoIONode(Node):
         self._sync_lock = threading.Lock()
         self._sync = self._new_sync(self._options)
         self._last_input_s = 0.0  # monotonic time of the newest input message; 0 once flushed
+        self._receipts: dict[int, float] = {}  # stamp -> monotonic receipt of the first input's message
         self._sequence = itertools.count(1)  # input order of the matched sets
         self._order_lock = threading.Lock()
         self._published = 0  # sequence number of the newest set whose outputs went out
@@ -260,11 +210,12 @@ class StereoIONode(Node):
         settings = self.parameters.settings
         self._worker = LatestWorker(
             self._run_frame,
-            partial(self.diagnostics.add_dropped, 1),
+            self.diagnostics.frame_dropped,
             settings.options.max_waiting_frames,
             threads=self.MAX_FRAMES_AT_ONCE,
         )
         self._worker.parallel = self.frames_at_once(settings)
+        self._worker.budget_s = settings.options.max_latency_ms / 1000.0
 
     @contextmanager
     def outputs_in_order(self) -> Iterator[bool]:
@@ -337,6 +288,11 @@ class StereoIONode(Node):
             kind=f"calibration {hash(camera.key())}",
         )
 
+    def published(self, name: str) -> None:
+        """Diagnostics: the age of this thread's frame's `name` output as it went out, from the receipt
+        of the frame's first input (what a subscriber of both sees as the node's delay)."""
+        self.diagnostics.output_age(name, time.monotonic() - self._frame.received_s)
+
     def finish_frame(self, stamp_ns: int, stage_ms: dict[str, float]) -> None:
         """A frame's outputs are all published: its stage times and latency go to diagnostics."""
         latency_s = (self.get_clock().now().nanoseconds - stamp_ns) / 1e9
@@ -378,6 +334,11 @@ class StereoIONode(Node):
             return
         self.diagnostics.input_received(topic, stamp)
         self._last_input_s = time.monotonic()
+        if index == 0:  # a set carries its first input's stamp
+            with self._sync_lock:
+                self._receipts.setdefault(stamp, self._last_input_s)
+                if len(self._receipts) > RECEIPTS_KEPT:
+                    del self._receipts[next(iter(self._receipts))]
         self._pair(lambda sync: sync.add(index, stamp, msg), topic, stamp)
         for info_index, (_, image_index, info) in self._info_files.items():
             if image_index == index:  # the file's calibration, stamped as this image, takes the topic's place
@@ -389,15 +350,16 @@ class StereoIONode(Node):
             before = self._sync.counters.copy()
             sets = step(self._sync)
             change = self._sync.counters.since(before)
+            received = [self._receipts.pop(stamp_ns, time.monotonic()) for stamp_ns, _ in sets]
         self.diagnostics.sync_changed(change)
         if change.stale:
             self._stale_stamp(topic, stamp)
         if change.time_jumps:
             self._time_jump(topic, stamp)
         worker = self._worker
-        for stamp_ns, messages in sets:
+        for (stamp_ns, messages), received_s in zip(sets, received, strict=True):
             if worker is not None:  # None: deactivated since this message arrived
-                worker.submit((next(self._sequence), stamp_ns, messages))
+                worker.submit((next(self._sequence), stamp_ns, received_s, messages), received_s)
 
     def _flush_when_idle(self) -> None:
         """The stream paused: a set that waits only for its camera_info goes out with the last one, as at
@@ -425,6 +387,7 @@ class StereoIONode(Node):
         if self._worker is not None:
             self._worker.capacity = new.max_waiting_frames
             self._worker.parallel = self.frames_at_once(settings)
+            self._worker.budget_s = new.max_latency_ms / 1000.0
         if any(getattr(old, n) != getattr(new, n) for n in ("queue_size", "approximate_sync", "tolerance_ns")):
             with self._sync_lock:
                 self._sync.reset()
@@ -438,13 +401,14 @@ class StereoIONode(Node):
             if everything or subscription.recheck_requested:
                 subscription.recheck()
 
-    def _run_frame(self, job: tuple[int, int, tuple[Any, ...]]) -> None:
-        self._frame.sequence, stamp_ns, messages = job
+    def _run_frame(self, job: tuple[int, int, float, tuple[Any, ...]]) -> None:
+        self._frame.sequence, stamp_ns, self._frame.received_s, messages = job
 
         def work() -> None:
             settings = self.parameters.settings
             if self.pipeline is not None and settings.stereo is not None:
                 self._use_params(self.pipeline, settings.stereo)
+                use_threads(settings.options.cpu_threads, self.frames_at_once(settings))
             stage_ms = self.process(stamp_ns, messages, settings)
             if stage_ms is not None:
                 self.finish_frame(stamp_ns, stage_ms)
