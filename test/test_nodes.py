@@ -40,6 +40,7 @@ from stereo_depth.messages import (
     make_header,
     pack_rgb,
 )
+from stereo_depth.ros.transport import PROFILE_VARIABLES
 from stereo_depth.ros.types import RCLPY_TYPES
 
 from conftest import EUROC, SCENES, read_image
@@ -446,6 +447,20 @@ def test_a_misspelt_parameter_is_named_once_with_the_closest_known_one(nodes: di
     assert len(lines) == 1 and "WARN" in lines[0]
     assert "'dispartiy_range' (did you mean 'disparity_range'?)" in lines[0]
     assert "unknown parameters" not in nodes["disparity"].output()
+
+
+def test_every_node_started_without_a_profile_maps_the_large_shared_memory_segment(
+    nodes: dict[str, NodeProcess], ros_env: dict[str, str]
+) -> None:
+    """run_node loads config/fastdds_large_images.xml when no profile is exported: each node's Fast DDS
+    maps its 64 MB segment (the default is 512 KB), so a 9.8 MB points2 goes through shared memory."""
+    if any(ros_env.get(name) for name in PROFILE_VARIABLES):
+        pytest.skip("a Fast DDS profile is exported here: the user's choice stands")
+    for name, process in nodes.items():
+        maps = Path(f"/proc/{process.process.pid}/maps").read_text().splitlines()
+        segments = {Path(line.split()[-1]) for line in maps if "/dev/shm/fastrtps_" in line}
+        sizes = [segment.stat().st_size for segment in segments if segment.exists()]
+        assert max(sizes, default=0) >= 64 * 2**20, f"{name}: shared-memory segments of {sizes} bytes"
 
 
 def test_module_nodes_survived_the_tests(nodes: dict[str, NodeProcess]) -> None:
