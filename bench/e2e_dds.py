@@ -18,9 +18,10 @@ the same way, on the same kind of frames:
 A few warm-up frames (not counted) go first, so one-off start-up work (imports, numba cache, first
 allocation) is not billed to the stream. Every process it starts is stopped by PID.
 
-All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default 15). `--profiles all`
-exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in all three; `none` in none, as a
-new user runs it (stereo_node then loads it for itself, see stereo_depth/ros/transport.py).
+All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default: a free one, locked).
+`--profiles all` exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in all
+three; `none` in none, as a new user runs it (stereo_node then loads it for itself, see
+stereo_depth/ros/transport.py).
 
     .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
     .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
@@ -43,12 +44,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from domain_lock import isolate_on_this_host
 
 from stereo_depth.ros.transport import PROFILE_VARIABLES
 
 REPO = Path(__file__).resolve().parents[1]
 TICK = os.sysconf("SC_CLK_TCK")
-NAMESPACE = "/stereo"
+NAMESPACE = "/e2e_dds"  # not /stereo, which test_replay and most launch files use
 FIRST_STAMP_NS = 1_700_000_000 * 10**9
 WARMUP_FRAMES = 10
 
@@ -520,7 +522,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
     parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
-    parser.add_argument("--domain-id", default=os.environ.get("ROS_DOMAIN_ID", "15"))
+    parser.add_argument("--domain-id", help="default: ROS_DOMAIN_ID, else a free one (bench/domain_lock.py)")
     parser.add_argument(
         "--profiles",
         nargs="+",
@@ -540,6 +542,9 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write every run's figures here")
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
     args = parser.parse_args()
+    if args.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = args.domain_id
+    args.domain_id = isolate_on_this_host()
     if args.role == "publish":
         run_publisher(args)
         return

@@ -142,11 +142,8 @@ class FaultyNode:
 @pytest.fixture(scope="module")
 def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultyNode]:
     process = NodeProcess("stereo_node", NS, ros_env, tmp_path_factory.mktemp("faults"))
-    ros.wait_for_nodes([process])
-    node = FaultyNode(ros, process, Scene())
-    yield node
-    code, output = process.stop()
-    assert code == 0 and "Traceback" not in output, output
+    with ros.running([process]):
+        yield FaultyNode(ros, process, Scene())
 
 
 def bad(scene: Scene, change: Callable[[Messages], None]) -> Messages:

@@ -30,10 +30,8 @@ WARM_UP_FRAMES = 100
 @pytest.fixture(scope="module")
 def node(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[NodeProcess]:
     process = NodeProcess("stereo_node", NS, ros_env, tmp_path_factory.mktemp("long_run"), ["-p", "profile:=fast"])
-    ros.wait_for_nodes([process])
-    yield process
-    code, output = process.stop()
-    assert code == 0 and "Traceback" not in output, output
+    with ros.running([process]):
+        yield process
 
 
 def warm_up(driver: Soak, frames: int) -> None:

@@ -436,8 +436,21 @@ def test_signal_ends_every_node_cleanly(
         NodeProcess(module, namespace, ros_env, tmp_path)
         for module in ("stereo_node", "disparity_node", "point_cloud_node", "rectify_node")
     ]
-    ros.wait_for_nodes(processes)
-    stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
+    try:
+        ros.wait_for_nodes(processes)
+    finally:
+        stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
+
+
+def test_nodes_that_do_not_come_up_are_stopped_not_left_to_answer_a_later_run(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """A fixture whose nodes time out at start-up stops them; here one runs under another node name, so
+    the wait for it times out though it is alive."""
+    process = NodeProcess("rectify_node", "/orphan", ros_env, tmp_path, ["-r", "__node:=renamed"])
+    with pytest.raises(TimeoutError), ros.running([process], timeout=3.0):
+        pass
+    assert process.process.poll() is not None
 
 
 def test_a_misspelt_parameter_is_named_once_with_the_closest_known_one(nodes: dict[str, NodeProcess]) -> None:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -302,3 +304,29 @@ def test_importing_the_nodes_leaves_signal_handling_alone() -> None:
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert run.stdout.split() == ["True", "True"], run.stderr
+
+
+BENCH = Path(__file__).parents[1] / "bench"
+
+
+def test_benches_that_talk_dds_take_a_free_domain_id_as_test_runs_do(tmp_path: Path) -> None:
+    """No fixed default id (15 was one, unlocked): with every id but 42 held (the locks in a TMPDIR of
+    this test's own), a bench settles on 42 and holds it; an exported ROS_DOMAIN_ID stands."""
+    held = []
+    for domain in range(1, 101):
+        if domain != 42:
+            lock = (tmp_path / f"stereo_depth_test_domain_{domain}.lock").open("w")
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held.append(lock)
+    env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"} | {"TMPDIR": str(tmp_path)}
+
+    def bench_domain(extra_env: dict[str, str], then: str = "") -> subprocess.CompletedProcess[str]:
+        code = f"import domain_lock; print(domain_lock.isolate_on_this_host()); {then}"
+        command = [sys.executable, "-c", code]
+        return subprocess.run(command, cwd=BENCH, env=env | extra_env, capture_output=True, text=True)
+
+    claimed = bench_domain({}, then="domain_lock.claim_domain_id()")  # a second claim: 42 is held by now
+    assert claimed.stdout.split() == ["42"] and "all 100 ROS domain ids are held" in claimed.stderr
+    assert bench_domain({"ROS_DOMAIN_ID": "7"}).stdout.split() == ["7"]
+    for bench in ("e2e_dds.py", "soak.py", "cloud_outputs.py"):  # each starts rclpy or nodes
+        assert "isolate_on_this_host()" in (BENCH / bench).read_text(), bench
