@@ -462,6 +462,39 @@ def test_only_one_camera_publishing_is_reported_naming_the_silent_topics(node: F
     node.wait_diagnostics(len(node.diagnostics.messages), "silent inputs", "none")
 
 
+def test_an_input_losing_frames_is_reported_missing_slower_than_sent_and_as_the_bottleneck(node: FaultyNode) -> None:
+    """Real traffic, real counters: every third right image never arrives (as when DDS loses a large
+    image's fragments) while the other topics come at the sender's 10 Hz. Diagnostics turn WARN naming
+    that topic, count its missing frames (and none on the left), and the bottleneck line names the
+    inputs whose frames could not be paired."""
+    since = len(node.diagnostics.messages)
+    right, left = f"{NS}/right/image_raw", f"{NS}/left/image_raw"
+
+    def slower() -> Any:
+        for array in node.diagnostics.messages[since:]:
+            status = array.status[0]
+            if status.message.startswith("inputs arrive slower than sent") and right in status.message:
+                return array
+        return None
+
+    deadline, found = time.monotonic() + 30.0, None
+    while found is None and time.monotonic() < deadline:
+        for k in range(9):
+            arriving = (LEFT_IMAGE, LEFT_INFO, RIGHT_INFO) if k % 3 == 2 else (0, 1, 2, 3)
+            node.publish(node.scene.messages(next(_stamps)), only=arriving)
+            time.sleep(0.1)
+        found = slower()
+    assert found is not None, "no 'inputs arrive slower than sent' status naming the right image"
+    assert found.status[0].level == DiagnosticStatus.WARN and left not in found.status[0].message
+    values = {kv.key: kv.value for kv in found.status[0].values}
+    assert int(values[f"{right} missing (recent window)"]) > 0 and int(values[f"{left} missing (recent window)"]) == 0
+    bottlenecks = [
+        kv.value for a in node.diagnostics.messages[since:] for kv in a.status[0].values if kv.key == "bottleneck"
+    ]
+    assert any(f"input {left} (lost in DDS, unmatched or stood in for)" in line for line in bottlenecks), bottlenecks
+    node.good_frame_is_exact()
+
+
 def test_a_flood_of_one_bad_input_is_logged_once_a_period_and_turns_diagnostics_to_warn(node: FaultyNode) -> None:
     """50 bad sets: the node says so at most once per 5 s (plus the count of the rest), skips all 50,
     and its diagnostics status is WARN naming the problem."""
