@@ -24,11 +24,13 @@ Key = tuple[str, ...]
 
 
 def error_key(exc: BaseException) -> Key:
-    """An error's kind: its type and every line its cause chain was raised through. The same bad input
-    takes the same path each time; each input is read on a line of its own (frames.decode_frame)."""
+    """An error's kind: its type, and for each error of its cause chain where it was made and every line
+    it was raised through. The same bad input takes the same path each time; each input is read on a
+    line of its own (frames.decode_frame)."""
     key = [type(exc).__qualname__]
     error: BaseException | None = exc
     while error is not None:
+        key.append(getattr(error, "made_at", ""))
         key += (f"{frame.filename}:{frame.lineno}" for frame in traceback.extract_tb(error.__traceback__))
         error = error.__cause__
     return tuple(key)
