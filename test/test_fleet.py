@@ -247,14 +247,20 @@ def test_shards_on_local_workers_equal_one_pass_and_the_output_folder_is_not_an_
     assert messages(out / "long") == long_one_pass
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["Ctrl-C", "SIGTERM"])
+@pytest.mark.parametrize(
+    ("sig", "backend"),
+    [(signal.SIGINT, "local"), (signal.SIGTERM, "local"), (signal.SIGINT, "ray")],
+    ids=["Ctrl-C", "SIGTERM", "Ctrl-C on Ray"],
+)
 def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(
-    tmp_path: Path, long_bag: Path, sig: signal.Signals
+    request: pytest.FixtureRequest, tmp_path: Path, long_bag: Path, sig: signal.Signals, backend: str
 ) -> None:
-    """Ctrl-C or a `kill` while two workers write shards: exit 130, the output folder holds nothing."""
+    """Ctrl-C or a `kill` while two local workers (or Ray tasks, cancelled) write shards: exit 130, the
+    output folder holds nothing."""
     out = tmp_path / "out"
     command = [sys.executable, "-m", "stereo_depth.cli", "process", str(long_bag), "--out-dir", str(out)]
-    command += ["--jobs", "2", "--shard-seconds", "0.5", "--profile", "quality"]
+    workers = ["--jobs", "2"] if backend == "local" else ["--ray", request.getfixturevalue("ray_head")]
+    command += [*workers, "--shard-seconds", "0.5", "--profile", "quality"]
     run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)  # environment: worker_settings
     assert run.stderr is not None
     deadline = time.monotonic() + 60

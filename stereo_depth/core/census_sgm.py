@@ -695,8 +695,8 @@ def compile_kernels() -> str:
 
     The first compile takes ~30 s per install, then each process loads machine code in well under
     a second: ``stereo-depth compile`` runs this at install time so a robot's first frame does not
-    wait. The cache sits in ``__pycache__`` beside this module when that is writable, else in
-    NUMBA_CACHE_DIR (or numba's per-user folder).
+    wait. The cache sits in NUMBA_CACHE_DIR when that is set, else in ``__pycache__`` beside this
+    module when writable (else numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
     for window_size in (1, 3):  # the 1-pixel window takes its own cost path
