@@ -18,6 +18,7 @@ from pathlib import Path
 
 import cv2
 import rclpy
+from domain_lock import isolate_on_this_host
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -57,6 +58,7 @@ def main() -> None:
     header = make_header(RCLPY_TYPES, 1, "cam0")
     frame = StereoFrame(1, header, left, right, camera, rectified=False)
 
+    isolate_on_this_host()
     rclpy.init()
     node = rclpy.create_node("cloud_outputs_bench")
     qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)

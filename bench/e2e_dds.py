@@ -23,9 +23,10 @@ installs Debian's ROS 1 packages on first use) once after each of our runs of a 
 interleave on a shared machine (ours, anchor, ours, anchor), and prints both side by side as medians.
 The anchor talks TCPROS: the Fast DDS profile does not apply to it, so its row stands beside both of ours.
 
-All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default 15). `--profiles all`
-exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in all three; `none` in none, as a
-new user runs it (stereo_node then loads it for itself, see stereo_depth/ros/transport.py).
+All processes get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID (default: a free one,
+locked). `--profiles all` exports the repository's Fast DDS profile (config/fastdds_large_images.xml) in
+all three; `none` in none, as a new user runs it (stereo_node then loads it for itself, see
+stereo_depth/ros/transport.py).
 
     .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
     .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
@@ -51,13 +52,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from domain_lock import isolate_on_this_host
 
 from stereo_depth.machine import print_machine
 from stereo_depth.ros.transport import PROFILE_VARIABLES
 
 REPO = Path(__file__).resolve().parents[1]
 TICK = os.sysconf("SC_CLK_TCK")
-NAMESPACE = "/stereo"
+NAMESPACE = "/e2e_dds"  # not /stereo, which test_replay and most launch files use
 FIRST_STAMP_NS = 1_700_000_000 * 10**9
 WARMUP_FRAMES = 10
 
@@ -563,7 +565,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
     parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
-    parser.add_argument("--domain-id", default=os.environ.get("ROS_DOMAIN_ID", "15"))
+    parser.add_argument("--domain-id", help="default: ROS_DOMAIN_ID, else a free one (bench/domain_lock.py)")
     parser.add_argument(
         "--profiles",
         nargs="+",
@@ -593,6 +595,9 @@ def main() -> None:
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
     args = parser.parse_args()
     print_machine()
+    if args.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = args.domain_id
+    args.domain_id = isolate_on_this_host()
     if args.role == "publish":
         run_publisher(args)
         return

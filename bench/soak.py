@@ -13,7 +13,7 @@ bounded and the excess shows as `node dropped`, not as a growing queue.
     .venv/bin/python bench/soak.py --seconds 600 --rate 30 --size 640x480
     .venv/bin/python bench/soak.py --seconds 60 --rate 100 --size 320x240 -p profile:=fast
 
-Uses ROS_DOMAIN_ID from the environment (default 15) and LOCALHOST discovery. test/test_long_run.py
+Uses ROS_DOMAIN_ID from the environment (default: a free one, locked) and LOCALHOST discovery. test/test_long_run.py
 drives the same `Soak` for 300 frames.
 """
 
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import signal
 import subprocess
 import sys
@@ -32,6 +31,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from domain_lock import isolate_on_this_host
 
 from stereo_depth.machine import print_machine
 
@@ -203,8 +203,7 @@ def main() -> int:
     args = parser.parse_args()
     print_machine()
     width, height = (int(v) for v in args.size.lower().split("x"))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.setdefault("ROS_DOMAIN_ID", "15")
+    isolate_on_this_host()
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

@@ -5,9 +5,18 @@ these, with a message that says what was expected, what was found and how to fix
 skip the frame; commands print them as one line and exit non-zero. Anything else escaping is a bug.
 """
 
+import inspect
+
 
 class StereoDepthError(Exception):
-    """Base of every error stereo_depth raises on purpose."""
+    """Base of every error stereo_depth raises on purpose. `made_at` (file:line where it was created)
+    tells kinds of problems apart where one `raise` passes on errors built by a helper."""
+
+    def __init__(self, *args: object) -> None:
+        super().__init__(*args)
+        caller = inspect.currentframe()
+        caller = caller.f_back if caller is not None else None
+        self.made_at = f"{caller.f_code.co_filename}:{caller.f_lineno}" if caller is not None else ""
 
 
 class CalibrationError(StereoDepthError):

@@ -18,7 +18,11 @@ newer set are complete (a set waits one frame at most), the last camera_info ser
 
 Queues are bounded (`queue_size` per input); a set never waits behind an older, incomplete one: when a
 set is emitted, everything older is dropped and counted. A stamp that goes back by more than
-`time_jump_ns` (a looping bag, a restarted driver) clears the queues instead of stalling them.
+`time_jump_ns` against its own input's last stamp (a looping bag, a restarted driver) clears the queues
+instead of stalling them; a message still in flight from before the jump is then `stale`. Judged per
+input, because a camera_info that a reliable writer repairs seconds late (it delivers a topic's samples
+in order, holding back the ones after it) is older than the last set but not than its own topic's last
+message: it pairs, or is counted `late`, and pairing goes on.
 """
 
 from __future__ import annotations
@@ -107,20 +111,27 @@ class Synchronizer:
         self._queues: list[deque[Stamped]] = [deque() for _ in range(n_inputs)]
         self._last_used: dict[int, Stamped] = {}  # per camera_info input: the newest it knows before the queue
         self._last_emitted: int | None = None
+        self._last_seen: dict[int, int] = {}  # per input: its newest stamp since the last time jump
+        self._restarted_at = 1 << 62  # the stamp that jumped back last (none yet: nothing is before it)
         self.counters = SyncCounters(dropped_by_input=[0] * n_inputs, substituted=[0] * n_inputs, late=[0] * n_inputs)
 
     def add(self, index: int, stamp_ns: int, message: Any) -> list[tuple[int, tuple[Any, ...]]]:
         """Queue one message; returns the sets it completed as (stamp of the first input, messages)."""
+        last_seen = self._last_seen.get(index)
+        if last_seen is not None and last_seen - stamp_ns > self.time_jump_ns:
+            self.reset()
+            self.counters.time_jumps += 1
+            self._restarted_at, last_seen = stamp_ns, None
+        elif last_seen is None and stamp_ns - self._restarted_at > self.time_jump_ns:
+            self.counters.stale += 1  # sent before the jump, arriving after it
+            return []
+        self._last_seen[index] = max(stamp_ns, last_seen or stamp_ns)
         if self._last_emitted is not None and stamp_ns <= self._last_emitted:
-            if self._last_emitted - stamp_ns > self.time_jump_ns:
-                self.reset()
-                self.counters.time_jumps += 1
-            elif index in self.calibrations:
+            if index in self.calibrations:
                 self._late_calibration(index, stamp_ns, message)
                 return []
-            else:
-                self.counters.stale += 1
-                return []
+            self.counters.stale += 1
+            return []
         queue = self._queues[index]
         if queue and stamp_ns < queue[-1][0]:
             # out of order within one input: keep the queue sorted
@@ -143,6 +154,7 @@ class Synchronizer:
                 self._drop(i)
             queue.clear()
         self._last_used.clear()
+        self._last_seen.clear()
         self._last_emitted = None
 
     def pending(self) -> int:

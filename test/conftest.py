@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import fcntl
 import os
-import tempfile
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -12,6 +11,9 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from domain_lock import claim_domain_id  # the benches lock their domain ids alike
 
 DATA = Path(__file__).parent / "data"
 SCENES = DATA / "scenes"
@@ -38,34 +40,12 @@ def assert_same_calibration(got: Any, expected: Any, what: object = "") -> None:
         np.testing.assert_allclose(a, b, rtol=0, atol=CALIBRATION_RTOL * scale, err_msg=f"{what} {name}")
 
 
-def _claim_domain_id() -> int:
-    """A ROS_DOMAIN_ID no other test run on this host holds: each run locks one for its lifetime, so two
-    runs at once (two checkouts, CI beside a developer) never see each other's nodes and topics."""
-    first = os.getpid() % DOMAIN_IDS
-    for offset in range(DOMAIN_IDS):
-        domain = (first + offset) % DOMAIN_IDS + 1
-        lock = (Path(tempfile.gettempdir()) / f"stereo_depth_test_domain_{domain}.lock").open("w")
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            lock.close()
-            continue
-        _DOMAIN_LOCKS.append(lock)  # held (open) until the test process ends
-        return domain
-    msg = f"all {DOMAIN_IDS} ROS domain ids are held by other test runs on this host"
-    raise RuntimeError(msg)
-
-
-DOMAIN_IDS = 100  # 1..100: ids whose DDS ports are valid on Linux
-_DOMAIN_LOCKS: list[object] = []
-
-
 @pytest.fixture(scope="session", autouse=True)
 def ros_env() -> dict[str, str]:
     """Environment for node subprocesses: loopback discovery only, a domain id of this run's own (set in
     os.environ too, before any test starts rclpy in this process)."""
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ["ROS_DOMAIN_ID"] = str(_claim_domain_id())
+    os.environ["ROS_DOMAIN_ID"] = str(claim_domain_id())
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     return env

@@ -129,22 +129,28 @@ class RosHarness:
         return self.node.create_publisher(msg_type, topic, QoSProfile(depth=5, reliability=reliability))
 
     @contextmanager
-    def running(self, processes: Iterable[NodeProcess]) -> Iterator[None]:
-        """Module fixtures' shape: the nodes are up for the block, then stopped, each exiting cleanly."""
+    def running(self, processes: Iterable[NodeProcess], timeout: float = TIMEOUT_S) -> Iterator[None]:
+        """Module fixtures' shape: the nodes are up for the block, then stopped, each exiting cleanly. Nodes
+        that did not all come up are stopped too: an orphan would answer a later run on this domain id."""
         processes = list(processes)
-        self.wait_for_nodes(processes)
+        try:
+            self.wait_for_nodes(processes, timeout)
+        except BaseException:
+            stop_all(processes, expect_clean=False)
+            raise
         try:
             yield
         finally:
             stop_all(processes)
 
-    def wait_for_nodes(self, processes: Iterable[NodeProcess]) -> None:
+    def wait_for_nodes(self, processes: Iterable[NodeProcess], timeout: float = TIMEOUT_S) -> None:
         for process in processes:
             wait_until(
                 lambda p=process: (
                     (p.name, p.namespace) in self.node.get_node_names_and_namespaces() or p.process.poll() is not None
                 ),
                 f"node {process.fqn}",
+                timeout,
             )
             assert process.process.poll() is None, f"{process.fqn} exited:\n{process.output()}"
 

@@ -3,19 +3,32 @@
 Written for clarity, not speed (a path at a time, a pixel or a row at a time, integers wide enough
 that nothing wraps), so the kernels' tricks (8-bit path costs, sweeps that meet in the middle, the
 right view read off the left's aggregated row, mirrored scratch rows) can be checked against it.
-It follows ``census_sgm``'s documented rules: border-replicated 7x9 census, Hamming costs shifted
-as ``cost_shift`` says, costs of right columns left of the image clamped to column 0, the SGM
-recurrence with P2 divided by the intensity step to the predecessor, paths that start with L = C
-where the predecessor is outside the image, winner-take-all with ties to the smaller disparity,
-uniqueness against the best cost more than one disparity away, the left-right check, parabola
-sub-pixel and the confidence margin.
+It follows ``census_sgm``'s documented rules (restated here, nothing imported from the code it checks):
+border-replicated 7x9 census, Hamming costs shifted as ``cost_shift`` documents, costs of right
+columns left of the image clamped to column 0, the SGM recurrence with P2 divided by the intensity
+step to the predecessor, paths that start with L = C where the predecessor is outside the image,
+winner-take-all with ties to the smaller disparity, uniqueness against the best cost more than one
+disparity away, the left-right check, parabola sub-pixel and the confidence margin.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from stereo_depth.core.census_sgm import cost_shift
+PATH_COST_MAX = 254  # uint8 path costs: the largest matching cost plus 2 x P2 must fit
+
+
+def cost_shift(census_bits: int, p1: float, p2: float) -> tuple[int, int, int]:
+    """The documented 8-bit scaling: the smallest right shift s with (bits >> s) + 2 x P2' <= 254, where
+    P1' = round(P1 / 2^s) and P2' = round(P2 / 2^s), at least P1' + 1."""
+    for shift in range(32):
+        q1 = round(p1 / 2**shift)
+        q2 = max(q1 + 1, round(p2 / 2**shift))
+        if (census_bits >> shift) + 2 * q2 <= PATH_COST_MAX:
+            return shift, q1, q2
+    msg = f"no shift fits P2 {p2}"
+    raise ValueError(msg)
+
 
 # Predecessor offsets (dy, dx) of the 8 paths; the first 4 are the 4-path mode.
 PATHS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, 1), (-1, -1), (1, 1), (1, -1))
@@ -109,7 +122,7 @@ def match(
     lr_penalty: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(disparity with NaN holes, confidence) before median, speckle and gap filtering."""
-    shift, p1, p2 = cost_shift(62, 1, P1, P2)
+    shift, p1, p2 = cost_shift(62, P1, P2)
     cost = costs(left, right, min_disparity, num_disparities, shift)
     total = aggregate(cost, left, p1, p2_table(p1, p2, p2_gamma), paths)
     h, w, nd = total.shape

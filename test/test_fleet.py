@@ -75,6 +75,14 @@ def one_bag_outputs(inputs: Path, tmp_path_factory: pytest.TempPathFactory) -> d
     return {name: messages(out / name) for name in GOOD}
 
 
+FIXED_RAY_PORTS = (  # the client server (10001) starts only with ray[client], not installed here
+    "dashboard-agent-listen",
+    "dashboard-agent-grpc",
+    "runtime-env-agent",
+    "metrics-export",
+)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -104,6 +112,9 @@ def ray_head(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     ray = Path(sys.executable).parent / "ray"
     command = [str(ray), "start", "--head", "--block", f"--port={port}", "--node-ip-address=127.0.0.1"]
     command += ["--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp_dir}"]
+    # Ray's fixed default ports (dashboard agent 52365, ...) would collide with another run's head on this
+    # host: free ones instead
+    command += [f"--{name}-port={free_port()}" for name in FIXED_RAY_PORTS]
     log = tmp_path_factory.mktemp("ray") / "head.log"
     with log.open("w") as sink:
         head = subprocess.Popen(command, env=env, stdout=sink, stderr=subprocess.STDOUT)
@@ -121,7 +132,11 @@ def ray_head(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 def run_fleet(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, list[str], str]:
     """Exit code, ERROR lines and stdout of one fleet run in this process."""
-    code = main(["process", *args, *FAST])
+    return main_errors(capsys, "process", *args, *FAST)
+
+
+def main_errors(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, list[str], str]:
+    code = main(list(args))
     captured = capsys.readouterr()
     return code, [line for line in captured.err.splitlines() if line.startswith("ERROR:")], captured.out
 
@@ -164,6 +179,14 @@ def test_bags_on_a_ray_cluster_equal_one_bag_runs_and_a_damaged_one_is_reported(
     code, errors, _ = run_fleet(capsys, str(inputs / "artl"), "--out-dir", str(out), *other, "--overwrite")
     assert code == 0, errors
     assert messages(out / "artl") != one_bag_outputs["artl"] and hidden_leftovers(out) == []
+
+    # Other outputs, or compression, are other parameters too: refused, never skipped as finished.
+    for changed in (("--outputs", "disparity"), ("--compress",)):
+        code, errors, _ = main_errors(
+            capsys, "process", str(inputs / "middlebury"), "--out-dir", str(out), *FAST, *changed
+        )
+        assert code == 1 and len(errors) == 1 and "made with other parameters" in errors[0], (changed, errors)
+        assert messages(out / "middlebury") == one_bag_outputs["middlebury"]
 
 
 @pytest.fixture(scope="module")
@@ -224,18 +247,27 @@ def test_shards_on_local_workers_equal_one_pass_and_the_output_folder_is_not_an_
     assert messages(out / "long") == long_one_pass
 
 
-def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(tmp_path: Path, long_bag: Path) -> None:
-    """Ctrl-C while two workers write shards: exit 130, the output folder holds nothing."""
+@pytest.mark.parametrize(
+    ("sig", "backend"),
+    [(signal.SIGINT, "local"), (signal.SIGTERM, "local"), (signal.SIGINT, "ray")],
+    ids=["Ctrl-C", "SIGTERM", "Ctrl-C on Ray"],
+)
+def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(
+    request: pytest.FixtureRequest, tmp_path: Path, long_bag: Path, sig: signal.Signals, backend: str
+) -> None:
+    """Ctrl-C or a `kill` while two local workers (or Ray tasks, cancelled) write shards: exit 130, the
+    output folder holds nothing."""
     out = tmp_path / "out"
     command = [sys.executable, "-m", "stereo_depth.cli", "process", str(long_bag), "--out-dir", str(out)]
-    command += ["--jobs", "2", "--shard-seconds", "0.5", "--profile", "quality"]
+    workers = ["--jobs", "2"] if backend == "local" else ["--ray", request.getfixturevalue("ray_head")]
+    command += [*workers, "--shard-seconds", "0.5", "--profile", "quality"]
     run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)  # environment: worker_settings
     assert run.stderr is not None
     deadline = time.monotonic() + 60
     while not any(p.name.startswith(".0") for p in (out / ".long.shards").glob("*")):  # a shard is being written
         assert run.poll() is None and time.monotonic() < deadline
         time.sleep(0.05)
-    run.send_signal(signal.SIGINT)
+    run.send_signal(sig)
     assert run.wait(timeout=60) == 130, run.stderr.read()
     assert "ERROR: interrupted" in run.stderr.read()
     assert list(out.iterdir()) == []

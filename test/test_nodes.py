@@ -40,6 +40,7 @@ from stereo_depth.messages import (
     make_header,
     pack_rgb,
 )
+from stereo_depth.ros.transport import PROFILE_VARIABLES
 from stereo_depth.ros.types import RCLPY_TYPES
 
 from conftest import EUROC, SCENES, read_image
@@ -491,8 +492,21 @@ def test_signal_ends_every_node_cleanly(
         NodeProcess(module, namespace, ros_env, tmp_path)
         for module in ("stereo_node", "disparity_node", "point_cloud_node", "rectify_node")
     ]
-    ros.wait_for_nodes(processes)
-    stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
+    try:
+        ros.wait_for_nodes(processes)
+    finally:
+        stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
+
+
+def test_nodes_that_do_not_come_up_are_stopped_not_left_to_answer_a_later_run(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """A fixture whose nodes time out at start-up stops them; here one runs under another node name, so
+    the wait for it times out though it is alive."""
+    process = NodeProcess("rectify_node", "/orphan", ros_env, tmp_path, ["-r", "__node:=renamed"])
+    with pytest.raises(TimeoutError), ros.running([process], timeout=3.0):
+        pass
+    assert process.process.poll() is not None
 
 
 def test_a_misspelt_parameter_is_named_once_with_the_closest_known_one(nodes: dict[str, NodeProcess]) -> None:
@@ -502,6 +516,20 @@ def test_a_misspelt_parameter_is_named_once_with_the_closest_known_one(nodes: di
     assert len(lines) == 1 and "WARN" in lines[0]
     assert "'dispartiy_range' (did you mean 'disparity_range'?)" in lines[0]
     assert "unknown parameters" not in nodes["disparity"].output()
+
+
+def test_every_node_started_without_a_profile_maps_the_large_shared_memory_segment(
+    nodes: dict[str, NodeProcess], ros_env: dict[str, str]
+) -> None:
+    """run_node loads config/fastdds_large_images.xml when no profile is exported: each node's Fast DDS
+    maps its 64 MB segment (the default is 512 KB), so a 9.8 MB points2 goes through shared memory."""
+    if any(ros_env.get(name) for name in PROFILE_VARIABLES):
+        pytest.skip("a Fast DDS profile is exported here: the user's choice stands")
+    for name, process in nodes.items():
+        maps = Path(f"/proc/{process.process.pid}/maps").read_text().splitlines()
+        segments = {Path(line.split()[-1]) for line in maps if "/dev/shm/fastrtps_" in line}
+        sizes = [segment.stat().st_size for segment in segments if segment.exists()]
+        assert max(sizes, default=0) >= 64 * 2**20, f"{name}: shared-memory segments of {sizes} bytes"
 
 
 def test_module_nodes_survived_the_tests(nodes: dict[str, NodeProcess]) -> None:
@@ -554,7 +582,7 @@ def test_census_core_publishes_confidence_and_the_calibration_check_reports(
         stamp = next(_stamps)
         live["inputs"].publish(knocked, stamp)
         status, values = wait_until(lambda: calibration_status(live["diagnostics"], stamp), "calibration check")
-        assert status.level in (DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+        assert status.level == DiagnosticStatus.ERROR, status.message  # 3.9 px: above 1.5 px (README)
         assert "recalibrate" in status.message
     finally:
         restore = {name: getattr(make_params(), name) for name in changes if name != "calibration_check_every_n_frames"}

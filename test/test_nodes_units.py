@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
+import os
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 import rclpy
@@ -17,10 +23,14 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
+from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.params import PROFILES, StereoParams
+from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.errors import ImageError, StereoDepthError
+from stereo_depth.frames import InputNames, decode_frame, named
 from stereo_depth.options import NodeOptions, OutputOptions, Settings
 from stereo_depth.options_docs import render_config_yaml
 from stereo_depth.ros import problems
@@ -29,7 +39,7 @@ from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
-from stereo_depth.sync import SyncCounters
+from stereo_depth.sync import StereoSet, SyncCounters
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
 BAGS = Path(__file__).parents[1] / "bags"
@@ -231,6 +241,19 @@ class FakeLogger:
         self.lines.append(("info", line))
 
 
+def bad_size(size: int) -> None:
+    msg = f"image data has {size} bytes but step x height = 2000"
+    raise ImageError(msg)
+
+
+def refused(log: problems.ProblemLog, convert: Any, *args: Any) -> None:
+    """What StereoIONode.guarded does with a frame's error."""
+    try:
+        convert(*args)
+    except StereoDepthError as exc:
+        log.skipped(str(exc), problems.error_key(exc))
+
+
 def test_problem_log_gives_one_line_per_kind_and_period_then_counts_the_rest(monkeypatch: pytest.MonkeyPatch) -> None:
     """A flood of one bad input: one line, then one per period saying how many were left out; another
     kind of problem is logged at once. Every refused frame still reaches diagnostics' last error."""
@@ -240,20 +263,72 @@ def test_problem_log_gives_one_line_per_kind_and_period_then_counts_the_rest(mon
     log = problems.ProblemLog(logger, diagnostics, period_s=5.0)
     for i in range(50):  # 50 frames in 4.9 s; the numbers in the text do not make a new kind
         now[0] = 100.0 + i * 0.1
-        log.skipped(f"/n/left/image_raw: image data has {1000 + i} bytes but step x height = 2000")
+        refused(log, named, "/n/left/image_raw", bad_size, 1000 + i)
     assert logger.lines == [("warning", "/n/left/image_raw: image data has 1000 bytes but step x height = 2000")]
     assert diagnostics.last_error.startswith("/n/left/image_raw: image data has 1049 bytes")
-    log.skipped("/n/right/camera_info: K has no focal length")  # another kind: not held back
-    assert logger.lines[-1] == ("warning", "/n/right/camera_info: K has no focal length")
+    log.skipped("/n/right/camera_info: K has no focal length", ("calibration", "/n/right/camera_info"))
+    assert logger.lines[-1] == ("warning", "/n/right/camera_info: K has no focal length")  # another kind
     now[0] = 105.0  # one period after the first line
-    log.skipped("/n/left/image_raw: image data has 7 bytes but step x height = 2000")
+    refused(log, named, "/n/left/image_raw", bad_size, 7)
     assert logger.lines[-1] == (
         "warning",
         "/n/left/image_raw: image data has 7 bytes but step x height = 2000 (49 more like it since the last report)",
     )
     now[0] = 105.1
-    log.info("calibration changed", kind="calibration 1")
-    log.info("calibration changed", kind="calibration 2")  # same text, told apart by kind
-    log.info("calibration changed", kind="calibration 1")
+    log.info("calibration changed", ("calibration", "1"))
+    log.info("calibration changed", ("calibration", "2"))  # same text, told apart by the key
+    log.info("calibration changed", ("calibration", "1"))
     assert [line for level, line in logger.lines if level == "info"] == ["calibration changed"] * 2
     assert len(logger.lines) == 5
+
+
+def test_the_same_problem_on_two_cameras_is_two_kinds_though_the_topics_differ_only_in_digits() -> None:
+    """A bad image on /rig/cam1 right after one on /rig/cam0: both are logged, each naming its topic."""
+    logger, diagnostics = FakeLogger(), NodeDiagnostics("/n", [])
+    log = problems.ProblemLog(logger, diagnostics, period_s=5.0)
+    good = Image(height=4, width=64, encoding="mono8", step=64, data=bytes(256))
+    bad = Image(height=4, width=64, encoding="uyvy", step=128, data=bytes(512))
+    names = InputNames("/rig/cam0/image_raw", "/rig/cam0/camera_info", "/rig/cam1/image_raw", "/rig/cam1/camera_info")
+    pipeline = StereoPipeline(StereoParams())
+    for left, right in ((bad, good), (good, bad)):
+        read = partial(decode_frame, rectified=False, names=names)
+        refused(log, read, StereoSet(0, left, None, right, None), pipeline, OutputOptions())
+    assert [line.split(":")[0] for _, line in logger.lines] == ["/rig/cam0/image_raw", "/rig/cam1/image_raw"]
+
+
+def test_importing_the_nodes_leaves_signal_handling_alone() -> None:
+    """Each node's main installs its Ctrl-C / SIGTERM handlers; importing a node (a launch file, a test,
+    a tool) must not change how the importing process handles signals."""
+    code = (
+        "import signal, stereo_depth.nodes.stereo_node, stereo_depth.nodes.point_cloud_node; "
+        "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler, "
+        "signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    assert run.stdout.split() == ["True", "True"], run.stderr
+
+
+BENCH = Path(__file__).parents[1] / "bench"
+
+
+def test_benches_that_talk_dds_take_a_free_domain_id_as_test_runs_do(tmp_path: Path) -> None:
+    """No fixed default id (15 was one, unlocked): with every id but 42 held (the locks in a TMPDIR of
+    this test's own), a bench settles on 42 and holds it; an exported ROS_DOMAIN_ID stands."""
+    held = []
+    for domain in range(1, 101):
+        if domain != 42:
+            lock = (tmp_path / f"stereo_depth_test_domain_{domain}.lock").open("w")
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held.append(lock)
+    env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"} | {"TMPDIR": str(tmp_path)}
+
+    def bench_domain(extra_env: dict[str, str], then: str = "") -> subprocess.CompletedProcess[str]:
+        code = f"import domain_lock; print(domain_lock.isolate_on_this_host()); {then}"
+        command = [sys.executable, "-c", code]
+        return subprocess.run(command, cwd=BENCH, env=env | extra_env, capture_output=True, text=True)
+
+    claimed = bench_domain({}, then="domain_lock.claim_domain_id()")  # a second claim: 42 is held by now
+    assert claimed.stdout.split() == ["42"] and "all 100 ROS domain ids are held" in claimed.stderr
+    assert bench_domain({"ROS_DOMAIN_ID": "7"}).stdout.split() == ["7"]
+    for bench in ("e2e_dds.py", "soak.py", "cloud_outputs.py"):  # each starts rclpy or nodes
+        assert "isolate_on_this_host()" in (BENCH / bench).read_text(), bench

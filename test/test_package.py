@@ -56,19 +56,24 @@ def test_colcon_install_has_ament_index_marker_launch_and_config(install_tree: P
     assert (share / "stereo_depth" / "config" / "stereo_depth.yaml").is_file()
 
 
-@pytest.mark.parametrize("exported", ["", "/my/profile.xml"], ids=["no profile", "the user's profile"])
+VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")  # Fast DDS 2 (Jazzy), 3
+
+
+@pytest.mark.parametrize("exported", [None, *VARIABLES], ids=["no profile", "Fast DDS 2 profile", "Fast DDS 3 profile"])
 def test_sourcing_the_workspace_exports_the_large_message_profile_unless_one_is_set(
-    install_tree: Path, exported: str
+    install_tree: Path, exported: str | None
 ) -> None:
     """`source install/setup.sh` gives a driver, RViz or Nav2 started from that shell our Fast DDS profile
-    (colcon.pkg's hook), and never replaces one the user exported."""
+    (colcon.pkg's hook) in both variables, and changes neither when the user exported either one."""
     env = {"HOME": os.environ.get("HOME", "/tmp"), "PATH": "/usr/bin:/bin"}
     if exported:
-        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = exported
-    script = f'. "{install_tree.parent / "local_setup.sh"}" && echo "$FASTRTPS_DEFAULT_PROFILES_FILE"'
-    shown = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True).stdout.strip()
+        env[exported] = "/my/profile.xml"
+    show = " && ".join(f'echo "{name}=${{{name}:-}}"' for name in VARIABLES)
+    script = f'. "{install_tree.parent / "local_setup.sh"}" && {show}'
+    shown = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True).stdout.split()
+    ours = install_tree / "share" / "stereo_depth" / "config" / "fastdds_large_images.xml"
     if exported:
-        assert shown == exported
+        assert shown == [f"{name}={env.get(name, '')}" for name in VARIABLES]
     else:
-        assert shown == str(install_tree / "share" / "stereo_depth" / "config" / "fastdds_large_images.xml")
-        assert Path(shown).is_file()
+        assert shown == [f"{name}={ours}" for name in VARIABLES]
+        assert ours.is_file()

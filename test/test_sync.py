@@ -72,6 +72,33 @@ def test_camera_info_repaired_late_is_counted_as_late_and_nothing_else() -> None
     assert sync.counters.stale == 0 and sync.counters.dropped == 0
 
 
+def test_camera_info_repaired_seconds_late_at_1_hz_pairs_or_is_late_and_never_restarts_pairing() -> None:
+    """At 1 Hz a reliable writer repairs a lost camera_info only after a heartbeat, 4 s later here, and
+    delivers the samples it held back behind it, in order: old stamps, but not a looping bag."""
+    on_time = [(index, frame, frame) for frame in range(1, 13) for index in (1, 3, 0, 2)]  # (input, frame, arrival)
+    repaired = [(i, f, 8.5 if i == 1 and 4 <= f <= 8 else t) for i, f, t in on_time]
+    sync = stereo_sync()
+    sets = []
+    for index, frame, _ in sorted(repaired, key=lambda a: a[2]):  # stable: same-time arrivals keep their order
+        sets += sync.add(index, frame * 1_000_000_000, message(index, frame))
+    sets += sync.flush()
+    assert [stamp // 1_000_000_000 for stamp, _ in sets] == list(range(1, 13))
+    assert sync.counters.time_jumps == 0 and sync.counters.dropped == 0
+    assert sync.counters.late == [0, 4, 0, 0] and sync.counters.substituted == [0, 4, 0, 0]
+
+
+def test_images_that_go_back_restart_pairing() -> None:
+    """A looping bag: the second loop pairs every frame again after one restart, whichever input shows
+    the jump first, and a message of the first loop still in flight after the jump changes nothing."""
+    for order in ((1, 3, 0, 2), (0, 2, 1, 3)):
+        first_loop = frames_in_order(order, 40)
+        straggler = first_loop.pop()  # the first loop's last message arrives just after the jump
+        sync = stereo_sync()
+        sets = feed(sync, [*first_loop, *frames_in_order(order, 40)[:1], straggler, *frames_in_order(order, 40)[1:]])
+        assert [stamp // (33 * MS) for stamp, _ in sets] == [*range(1, 40), *range(1, 41)]
+        assert sync.counters.time_jumps == 1 and sync.counters.stale == 1
+
+
 def test_skewed_and_bursty_streams_pair_every_frame() -> None:
     """Right camera 3 frames behind the left; and all four topics arriving in bursts of 4 frames."""
     timeline = [(f + 0.1 * i, (i, f)) for f in range(1, 41) for i in (1, 0)]  # left: info, then image

@@ -323,21 +323,25 @@ class StereoBagReader:
             stamp_ns = stamp_to_ns(message.header.stamp)
             if window.owns(stamp_ns):
                 self._count_input(topic)
-            for stamp, msgs in sync.add(role, stamp_ns, message):
-                if window.stop_ns is not None and stamp >= window.stop_ns:
-                    self.stats.handoff_ns = stamp  # set stamps only grow: the window is complete
-                    self.stats.unmatched_at_end = sync.pending()
-                    return
-                if not window.owns(stamp):
-                    continue  # lead-in: paired only to reach one pass's state at the border
+            yield from self._owned(sync.add(role, stamp_ns, message))
+            if self.stats.handoff_ns is not None:
+                break
+        else:  # the end of what this window reads: sets that wait only for a camera_info go out
+            yield from self._owned(sync.flush())
+        self.stats.unmatched_at_end = sync.pending()
+
+    def _owned(self, sets: list[tuple[int, tuple[Any, ...]]]) -> Iterator[StereoSet]:
+        """The sets the window owns. The first set past its end is the hand-off (set stamps only grow: the
+        window is complete); sets before its start were paired only to reach one pass's state there."""
+        for stamp, msgs in sets:
+            if self.window.stop_ns is not None and stamp >= self.window.stop_ns:
+                self.stats.handoff_ns = stamp
+                return
+            if self.window.owns(stamp):
                 self.stats.matched += 1
                 if self.stats.first_ns is None:
                     self.stats.first_ns = stamp
                 yield self._stereo_set(stamp, msgs)
-        for stamp, msgs in sync.flush():
-            self.stats.matched += 1
-            yield self._stereo_set(stamp, msgs)
-        self.stats.unmatched_at_end = sync.pending()
 
     def _stereo_set(self, stamp_ns: int, messages: tuple[Any, ...]) -> StereoSet:
         calibration = self.choice.calibration

@@ -48,12 +48,23 @@ def check_borders(name: str, parts: list[TaskResult]) -> None:
 def merge(
     parts: list[Path], out_bag: Path, *, storage: str, compress: bool, overwrite: bool, custom_data: dict[str, str]
 ) -> None:
-    """The parts' messages, part after part in their recorded order, into one bag (atomically)."""
+    """The parts' messages, part after part in their recorded order, into one bag (atomically). A stamp
+    that an earlier part wrote on the same topic is refused: a frame written twice is a border bug."""
+    earlier: set[tuple[str, int]] = set()
     with BagWriter(out_bag, storage=storage, compress=compress, overwrite=overwrite, custom_data=custom_data) as writer:
         for part in parts:
+            written = set()
             reader = open_reader(part, allow_empty=True)  # a shard may own no frame
             try:
                 for connection, timestamp, raw in reader.messages(reader.connections):
+                    if (connection.topic, timestamp) in earlier:
+                        msg = (
+                            f"two shards wrote {connection.topic} at stamp {timestamp}: that frame would be there "
+                            "twice; process this bag without --shard-seconds"
+                        )
+                        raise BagError(msg)
+                    written.add((connection.topic, timestamp))
                     writer.write_raw(connection.topic, connection.msgtype, raw, timestamp)
             finally:
                 reader.close()
+            earlier |= written

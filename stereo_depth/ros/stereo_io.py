@@ -14,18 +14,19 @@ OpenCV releases the GIL, so the executor keeps receiving while a frame is proces
 from __future__ import annotations
 
 import itertools
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
+from types import FrameType
 from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
@@ -46,7 +47,7 @@ from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
-from stereo_depth.ros.problems import ProblemLog
+from stereo_depth.ros.problems import ProblemLog, error_key
 from stereo_depth.ros.qos import AdaptiveSubscription, output_qos, override_errors, unused_overrides_line
 from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -285,7 +286,7 @@ class StereoIONode(Node):
             f"calibration {'changed' if loaded else 'received'} (left = {names[0]}, right = {names[1]}): "
             f"{camera.width}x{camera.height}, fx {camera.fx:.1f} px, baseline {camera.baseline:.4f} m; "
             "rectification maps rebuilt",
-            kind=f"calibration {hash(camera.key())}",
+            key=("calibration", str(hash(camera.key()))),
         )
 
     def published(self, name: str) -> None:
@@ -304,7 +305,7 @@ class StereoIONode(Node):
         try:
             work()
         except StereoDepthError as exc:
-            self.problems.skipped(str(exc))
+            self.problems.skipped(str(exc), error_key(exc))
         except Exception as exc:
             if not self.context.ok():
                 return  # shutting down: publishers are gone
@@ -329,7 +330,8 @@ class StereoIONode(Node):
         if stamp == 0:
             self.problems.skipped(
                 f"{topic}: header.stamp is zero, message skipped; the driver must stamp every image and "
-                "camera_info with its capture time, or left and right cannot be paired"
+                "camera_info with its capture time, or left and right cannot be paired",
+                ("zero stamp", topic),
             )
             return
         self.diagnostics.input_received(topic, stamp)
@@ -371,13 +373,15 @@ class StereoIONode(Node):
     def _stale_stamp(self, topic: str, stamp_ns: int) -> None:
         self.problems.skipped(
             f"{topic}: stamp {stamp_ns / 1e9:.6f} s is not newer than the last paired set (repeated, or "
-            "back by less than 1 s), message dropped; each frame needs a new, increasing stamp"
+            "back by less than 1 s), message dropped; each frame needs a new, increasing stamp",
+            ("stale stamp", topic),
         )
 
     def _time_jump(self, topic: str, stamp_ns: int) -> None:
         self.problems.info(
             f"{topic}: stamps jumped back to {stamp_ns / 1e9:.3f} s (a looping bag or a restarted driver); "
-            "pairing restarted from there"
+            "pairing restarted from there",
+            ("time jump", topic),
         )
 
     def _settings_changed(self, settings: Settings) -> None:
@@ -424,7 +428,7 @@ class StereoIONode(Node):
     def _publish_diagnostics(self) -> None:
         silence = self.diagnostics.silent_inputs()
         if silence:
-            self.problems.warn(silence)
+            self.problems.warn(silence, ("silent inputs",))
         header = make_header(RCLPY_TYPES, self.get_clock().now().nanoseconds, "")
         self._diagnostics_pub.publish(self.diagnostics.report(header))
 
@@ -474,14 +478,15 @@ def timed(stages: dict[str, float], name: str, start: float) -> None:
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
-    """rclpy Jazzy's main(). SIGINT / SIGTERM raise SystemExit(0) (see stereo_depth.nodes), so the
+    """rclpy Jazzy's main(). SIGINT / SIGTERM raise SystemExit(0) (`exit_quietly_on_signals`), so the
     `finally` below stops the worker and destroys the node before the process ends with 0.
     A node that cannot start (bad --ros-args, --params-file or parameter value) says why in one
     line and exits with 2, rather than run with part of its configuration."""
+    exit_quietly_on_signals()
     profile = use_large_message_profile()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except _rclpy.RCLError as exc:  # unreadable --params-file, malformed --ros-args
+    except RuntimeError as exc:  # rcl's error (unreadable --params-file, malformed --ros-args) is one
         rclpy.logging.get_logger("stereo_depth").error(f"cannot start: {_rcl_reason(exc)}")
         return 2
     node: Node | None = None
@@ -507,6 +512,22 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def exit_quietly_on_signals() -> None:
+    """Ctrl-C or SIGTERM end a node with exit code 0 and no traceback, whenever they arrive. The handler
+    stays in charge after `rclpy.init` (which is told to install none): raising SystemExit between two
+    bytecodes of the main thread unwinds through `run_node`'s cleanup without racing rclpy's C code,
+    which rclpy's own SIGTERM handler does when it shuts the context down from another thread."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _exit_quietly)
+
+
+def _exit_quietly(signum: int, frame: FrameType | None) -> None:
+    del signum, frame
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)  # a second signal must not interrupt the cleanup
+    raise SystemExit(0)
 
 
 def _rcl_reason(exc: Exception) -> str:

@@ -113,8 +113,8 @@ def compile_kernels() -> str:
 
     The first compile takes ~30 s per install, then each process loads machine code in well under
     a second: ``stereo-depth compile`` runs this at install time so a robot's first frame does not
-    wait. The cache sits in ``__pycache__`` beside the kernel modules when that is writable, else in
-    NUMBA_CACHE_DIR (or numba's per-user folder).
+    wait. The cache sits in NUMBA_CACHE_DIR when that is set, else in ``__pycache__`` beside the kernel
+    modules when writable (else numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
     for window_size in (1, 3):  # the 1-pixel window takes its own cost path
@@ -129,8 +129,10 @@ def compile_kernels() -> str:
             uniqueness_ratio=3,
             disp12_max_diff=1,
         )
-    fill_holes(disparity, image)
-    fill_holes(disparity, image, scanline=False)
+    holes = np.full_like(disparity, 20.0)
+    holes[::2, ::3] = np.nan  # some holes, not all: a disparity with none or only holes fills nothing
+    fill_holes(holes, image)
+    fill_holes(holes, image, scanline=False)
     return str(vars(transform)["_census"]._cache._cache_path)  # the dispatcher compile_all put there
 
 
