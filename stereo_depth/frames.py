@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import threading
+import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams, _spec, coerce
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
+from stereo_depth.core.temporal import TemporalFilter, TemporalSettings
 from stereo_depth.errors import CalibrationError, ImageError, ParameterError, StereoDepthError
 from stereo_depth.messages import (
     DEFAULT_MAX_PIXELS,
@@ -108,6 +110,51 @@ class OutputOptions:
         metadata=_spec("Publish points2 at most this often, Hz, judged by stamps (0 = every frame)", 0.0, 1000.0),
     )
 
+    temporal_filter: bool = field(
+        default=False,
+        metadata=_spec(
+            "Filter the disparity over time before depth and points2: a pixel is output only when it agrees "
+            "with temporal_persistence of the last temporal_history frames (no ghost points)"
+        ),
+    )
+    temporal_alpha: float = field(
+        default=0.4,
+        metadata=_spec("Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0),
+    )
+    temporal_delta: float = field(
+        default=2.0,
+        metadata=_spec(
+            "Temporal filter: values within this many px agree (one surface); a value farther from the "
+            "pixel's newest restarts its average",
+            0.0,
+            1e3,
+        ),
+    )
+    temporal_persistence: int = field(
+        default=3,
+        metadata=_spec("Temporal filter: frames of temporal_history a pixel must agree in to be output", 1, 8, 1),
+    )
+    temporal_history: int = field(default=8, metadata=_spec("Temporal filter: frames remembered per pixel", 1, 8, 1))
+    temporal_motion_reset: float = field(
+        default=0.0,
+        metadata=_spec(
+            "Temporal filter: restart every pixel when more than this share of them changed at once "
+            "(the camera moved fast; 0 = off)",
+            0.0,
+            1.0,
+        ),
+    )
+
+    @property
+    def temporal(self) -> TemporalSettings:
+        return TemporalSettings(
+            self.temporal_alpha,
+            self.temporal_delta,
+            self.temporal_persistence,
+            self.temporal_history,
+            self.temporal_motion_reset,
+        )
+
     def validate(self) -> OutputOptions:
         for f in dataclasses.fields(self):
             spec, value = f.metadata, getattr(self, f.name)
@@ -133,6 +180,7 @@ class OutputOptions:
                 raise ParameterError(reason)
         if self.mask_image:
             read_mask(self.mask_image)  # refused now, not frame after frame
+        self.temporal.validate()
         return self
 
 
@@ -224,6 +272,22 @@ def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: Sequence[st
         return pipeline.match(frame.left, frame.right, frame.camera, rectified=frame.rectified)
     except StereoDepthError as exc:
         raise type(exc)(f"{names[0]} and {names[2]}: {exc}") from exc
+
+
+def filter_over_time(
+    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, options: OutputOptions
+) -> None:
+    """`temporal_filter`: the frame's disparity replaced by its temporally filtered one (timed as stage
+    "temporal"), so disparity, depth and points2 all carry it. Call it once per frame in stamp order,
+    after matching and before the outputs; off, it forgets what it had seen."""
+    if not options.temporal_filter:
+        temporal.reset()
+        return
+    start = time.perf_counter()
+    result.disparity = temporal.apply(
+        result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), options.temporal
+    )
+    result.timings_ms["temporal"] = (time.perf_counter() - start) * 1000.0
 
 
 # ---------------------------------------------------------------- match outputs
@@ -369,9 +433,11 @@ class CloudRate:
 
 class OutputState:
     """What one stream of frames keeps between frames for its outputs: the rectified mask, the
-    organized cloud's bytes and the stamp of the last cloud (points_max_rate)."""
+    organized cloud's bytes, the stamp of the last cloud (points_max_rate) and the temporal filter's
+    history (touched only where frames are in stamp order: `filter_over_time`)."""
 
     def __init__(self) -> None:
+        self.temporal = TemporalFilter()
         self.masks = RectifiedMasks()
         self.cloud_buffer = CloudBuffer()
         self.cloud_rate = CloudRate()

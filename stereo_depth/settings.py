@@ -139,6 +139,8 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
+# the temporal filter on the disparity (stereo_node)
+TEMPORAL_OPTIONS = tuple(f.name for f in dataclasses.fields(OutputOptions) if f.name.startswith("temporal_"))
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
 STARTUP_OPTIONS = frozenset(CAMERA_OPTIONS)  # they choose the subscriptions: read-only once running
 

@@ -23,6 +23,7 @@ from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
@@ -32,6 +33,7 @@ from stereo_depth.frames import (
     OutputState,
     StereoFrame,
     decode_frame,
+    filter_over_time,
     geometry_outputs,
     image_outputs,
     match_frame,
@@ -130,6 +132,7 @@ def frame_outputs(
 ) -> tuple[dict[str, Any], Geometry | None]:
     """Both of stereo_node's stages for one frame: its messages by output name (those asked for) and
     the geometry they were built from (None when no depth output or PLY was asked for)."""
+    filter_over_time(state.temporal, frame, result, options.output)
     messages = image_outputs(types, frame.header, result, pipeline.params, options.outputs)
     wanted = [name for name in GEOMETRY_OUTPUTS if name in options.outputs]
     wanted = sorted(state.cloud_rate.wanted(wanted, frame.stamp_ns, options.output))
@@ -140,6 +143,22 @@ def frame_outputs(
     messages.update(geometry_outputs(types, frame.header, geometry, options.output, wanted, state))
     result.timings_ms["points"] = (time.perf_counter() - start) * 1000.0  # as stereo_node times it
     return messages, geometry
+
+
+def _lead_in(
+    pipeline: StereoPipeline,
+    frame: StereoMessages,
+    rectified: bool,
+    output: OutputOptions,
+    names: Sequence[str],
+    state: OutputState,
+) -> None:
+    """A frame before a shard's own: matched and fed to the temporal filter as one pass would, not written."""
+    try:
+        decoded, result = run_frame(pipeline, frame, rectified, output, names)
+    except StereoDepthError:
+        return  # one pass skips it too
+    filter_over_time(state.temporal, decoded, result, output)
 
 
 class Progress:
@@ -207,7 +226,12 @@ def process_bag(
     start = time.perf_counter()
     with (
         StereoBagReader(
-            in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics, window=options.window
+            in_bag,
+            namespace=options.namespace,
+            sync=options.sync,
+            choice=options.topics,
+            window=options.window,
+            lead_in_frames=lead_in_frames(options.output.temporal_history) if options.output.temporal_filter else 0,
         ) as reader,
         BagWriter(
             out_bag,
@@ -221,6 +245,9 @@ def process_bag(
         progress = Progress(reader.count(topics.names[0]), options.progress)
         state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for frame in reader.frames():
+            if frame.lead_in:  # a shard's frames before its first: only to fill the temporal filter
+                _lead_in(pipeline, frame, topics.rectified, options.output, topics.input_names, state)
+                continue
             try:
                 decoded, result = run_frame(pipeline, frame, topics.rectified, options.output, topics.input_names)
                 messages, geometry = frame_outputs(types, pipeline, decoded, result, options, state)
@@ -232,7 +259,7 @@ def process_bag(
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))
             for stage, ms in result.timings_ms.items():
-                summary.stage_ms[stage] += ms
+                summary.stage_ms[stage] = summary.stage_ms.get(stage, 0.0) + ms
             _export(summary.frames_out, frame, result, geometry, params, options, summary)
             if on_frame is not None:
                 on_frame(summary.frames_out, frame, result)

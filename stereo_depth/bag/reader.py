@@ -12,6 +12,7 @@ Messages go through `sync.Synchronizer` in the order they were recorded, as they
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,6 +125,7 @@ class StereoMessages:
     left_info: Any
     right_image: Any
     right_info: Any
+    lead_in: bool = False  # a set before the window's own, yielded only for the temporal filter's state
 
 
 def _normalise(namespace: str) -> str:
@@ -296,8 +298,12 @@ class StereoBagReader:
         sync: SyncPolicy | None = None,
         choice: TopicChoice | None = None,
         window: TimeWindow | None = None,
+        lead_in_frames: int = 0,
     ) -> None:
+        """`lead_in_frames`: with a window, yield (as `lead_in`) up to this many sets paired before its
+        start, just before its first own set."""
         self.path = Path(path)
+        self.lead_in_frames = lead_in_frames
         self.policy = sync or SyncPolicy()
         self.choice = choice or TopicChoice(namespace=namespace)
         self.window = window or TimeWindow()
@@ -341,6 +347,7 @@ class StereoBagReader:
         self.stats.sync = sync.counters
         role_of = {name: i for i, name in enumerate(inputs)}
         window = self.window
+        lead_in: deque[StereoMessages] = deque(maxlen=self.lead_in_frames or 1)
         for topic, message in self._messages(inputs):
             role = role_of[topic]
             stamp_ns = stamp_to_ns(message.header.stamp)
@@ -351,14 +358,20 @@ class StereoBagReader:
                     self.stats.handoff_ns = stamp  # set stamps only grow: the window is complete
                     self.stats.unmatched_at_end = sync.pending()
                     return
-                if not window.owns(stamp):
-                    continue  # lead-in: paired only to reach one pass's state at the border
+                if not window.owns(stamp):  # lead-in: paired only to reach one pass's state at the border
+                    if self.lead_in_frames:
+                        lead_in.append(StereoMessages(stamp, *self._four(msgs), lead_in=True))
+                    continue
                 self.stats.matched += 1
                 if self.stats.first_ns is None:
                     self.stats.first_ns = stamp
+                    yield from lead_in
                 yield StereoMessages(stamp, *self._four(msgs))
         for stamp, msgs in sync.flush():
             self.stats.matched += 1
+            if self.stats.first_ns is None:
+                self.stats.first_ns = stamp
+                yield from lead_in
             yield StereoMessages(stamp, *self._four(msgs))
         self.stats.unmatched_at_end = sync.pending()
 

@@ -32,6 +32,7 @@ from stereo_depth.frames import (
     OutputOptions,
     OutputState,
     StereoFrame,
+    filter_over_time,
     geometry_outputs,
     image_outputs,
     result_geometry,
@@ -39,7 +40,7 @@ from stereo_depth.frames import (
 from stereo_depth.ros.parameters import CLOUD_OPTIONS, INPUT_OPTIONS, NodeOptions, Settings
 from stereo_depth.ros.stereo_io import LatestWorker, StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
-from stereo_depth.settings import CAMERA_OPTIONS
+from stereo_depth.settings import CAMERA_OPTIONS, TEMPORAL_OPTIONS
 
 OUTPUT_TYPES = {
     "left/image_rect": Image,
@@ -76,6 +77,7 @@ class StereoNode(StereoIONode):
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,
         *CLOUD_OPTIONS,
+        *TEMPORAL_OPTIONS,
         "depth_encoding",
         "publish_rectified",
         "publish_disparity",
@@ -111,6 +113,7 @@ class StereoNode(StereoIONode):
         with self.outputs_in_order() as newest:
             if not newest:
                 return None
+            filter_over_time(self._state.temporal, frame, result, settings.output)  # frames in stamp order here
             wanted = self._wanted(IMAGE_OUTPUTS, options)
             self._publish(image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, wanted), stages)
             self._maybe_check_calibration(frame.stamp_ns, result, options)
