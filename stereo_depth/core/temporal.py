@@ -150,8 +150,9 @@ class TemporalFilter:
 
 
 # ----------------------------------------------------------------------------------------------- kernels
-# Invalid pixels are HOLE in the history, not NaN, so the kernels may use fastmath (which assumes no NaN)
-# and vectorise; only `_store`, which reads the matcher's NaN, runs without it.
+# Invalid pixels are HOLE in the history, not NaN, so "agrees with" is one branch-free comparison. No
+# fastmath: its contractions (FMA) differ between a vector loop and its scalar remainder, so a pixel's
+# result would depend on where its row starts in memory, and live and offline would differ in the last bit.
 
 HOLE = np.float32(-1e9)
 BRIDGED_FRAMES = 2  # a pixel invalid in this many latest frames still shows its last value (then: a trail)
@@ -256,5 +257,5 @@ def _kernels() -> dict[str, Callable[..., Any]]:
 
     return {
         "store": numba.njit(cache=True, nogil=True)(_store),
-        "filter": numba.njit(cache=True, nogil=True, fastmath=True)(_filter_pixels),
+        "filter": numba.njit(cache=True, nogil=True)(_filter_pixels),
     }
