@@ -24,7 +24,7 @@ from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
 
-from conftest import EUROC, SCENES
+from conftest import SCENES, euroc_sequence
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 FAST = ["--profile", "fast", "--set", "disparity_range=16", "--outputs", "disparity", "depth"]
@@ -252,16 +252,8 @@ def test_missing_ray_is_one_clear_error(
 
 def test_shards_with_the_temporal_filter_equal_one_pass(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     """The filter's state crosses shard borders: each shard is fed the frames before its first (lead-in)."""
-    sequence = tmp_path / "sequence"  # the 6 EuRoC frames 5 times over: 30 frames of a moving camera
-    for side in ("left", "right"):
-        (sequence / side).mkdir(parents=True)
-        images = sorted((EUROC / side).glob("*.png"))
-        for k in range(30):
-            shutil.copy(images[k % len(images)], sequence / side / f"{1_000_000_000 + k * 100_000_000}.png")
-    for name in ("cam0_sensor.yaml", "cam1_sensor.yaml"):
-        shutil.copy(EUROC / name, sequence / name)
     (tmp_path / "inputs").mkdir()
-    bag = make_bag(tmp_path / "inputs" / "euroc", sequence, rate=10.0)
+    bag = make_bag(tmp_path / "inputs" / "euroc", euroc_sequence(tmp_path / "sequence", 30))  # a moving camera
     temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]  # holes: the filter's to handle
     assert main(["process", str(bag), str(tmp_path / "one_pass"), *FAST, *temporal]) == 0
     out = tmp_path / "sharded"

@@ -62,6 +62,15 @@ class TemporalSettings:
         return self
 
 
+def compile_kernels() -> None:
+    """Compile the kernels (or load them from numba's cache) for frames with and without confidence now,
+    so that the first frame does not wait for them (a node would drop the frames arriving meanwhile)."""
+    for confidence in (None, np.ones((2, 2), np.float32)):
+        temporal = TemporalFilter()
+        for stamp in (1, 2):
+            temporal.apply(np.ones((2, 2), np.float32), confidence, stamp, None, TemporalSettings(motion_reset=0.5))
+
+
 def lead_in_frames(history: int = MAX_HISTORY) -> int:
     """Frames before a shard's first that give it the state one pass has there: the output depends on
     the last `history` frames, and the restarts among them on the `history` stamps before each."""

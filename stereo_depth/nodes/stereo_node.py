@@ -26,6 +26,7 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
+from stereo_depth.core.temporal import compile_kernels
 from stereo_depth.frames import (
     GEOMETRY_OUTPUTS,
     IMAGE_OUTPUTS,
@@ -101,6 +102,8 @@ class StereoNode(StereoIONode):
         self._check_idle.set()
         self._frames = 0
         self._geometry = LatestWorker(self._geometry_stage, self.diagnostics.add_dropped_cloud)
+        if self.parameters.settings.output.temporal_filter:
+            compile_kernels()  # now, not on the first frame
 
     def process(self, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         assert self.pipeline is not None and settings.stereo is not None
