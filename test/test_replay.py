@@ -22,8 +22,8 @@ from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
-from stereo_depth.frames import OutputOptions
 from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.frames import OutputOptions
 from stereo_depth.messages import disparity_from_msg, stamp_to_ns
 
 from conftest import EUROC, euroc_sequence
