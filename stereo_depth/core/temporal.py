@@ -201,10 +201,11 @@ def _filter_pixels(
     persistence: np.float32,
     out: np.ndarray,
 ) -> None:
-    """Per pixel: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a), the valid one before
-    it (b), and over the history how many frames agree with each (support) or hold another valid value
-    (conflict). Output: a's weighted average when a is supported (support >= persistence >= conflict),
-    else b when a is a value seen once and b is supported, else invalid.
+    """Per pixel: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a), the previous frame's
+    when a is this frame's (b), and over the history how many frames agree with each (support) or hold
+    another valid value (conflict). Output: a's weighted average when a is supported (support >=
+    persistence, support >= conflict), else b's when b is supported and differs from a (a new value seen
+    once: an outlier, or the first frame of a change), else invalid.
 
     `slots`: the history's rows, newest first, as many as there are frames since the restart. Block by
     block, frame by frame, without branches, so that the inner loops vectorise; numba compiles the
@@ -223,13 +224,14 @@ def _filter_pixels(
         cand_a[:n] = HOLE
         cand_b[:n] = HOLE
         acc[:, :n] = zero
-        for age in range(min(BRIDGED_FRAMES + 2, frames)):
+        for age in range(min(BRIDGED_FRAMES + 1, frames)):
             row = values[slots[age], start:stop]
             for i in range(n):
-                v = row[i]
-                a = cand_a[i]
-                cand_b[i] = v if (a != HOLE and cand_b[i] == HOLE) else cand_b[i]
-                cand_a[i] = v if (a == HOLE and age <= BRIDGED_FRAMES) else a
+                cand_a[i] = row[i] if cand_a[i] == HOLE else cand_a[i]
+        if frames > 1:  # b: the previous frame's value, when a is this frame's
+            newest, previous = values[slots[0], start:stop], values[slots[1], start:stop]
+            for i in range(n):
+                cand_b[i] = previous[i] if newest[i] != HOLE else HOLE
         decay = alpha
         for age in range(frames):
             row = values[slots[age], start:stop]
