@@ -263,10 +263,11 @@ def main() -> None:
             outs, gts, ms = run(pipeline, frames, chosen, None, 0)
             row = metrics(outs[args.warm_up :], gts[args.warm_up :], ms)
             print_row(f"moving {scene.name}", profile, label, row)
-            on_patch = [np.isfinite(d[np.abs(g - d_obj) < 0.5]).mean() for d, g in zip(outs, gts, strict=True)]
+            moving = zip(outs[args.warm_up : vanish], gts[args.warm_up : vanish], strict=True)
+            on_patch = [np.isfinite(d[np.abs(g - d_obj) < 0.5]).mean() for d, g in moving]
             print(
                 f"    trail gone {trail_frames(outs, gts, vanish, d_obj)} frames after the patch vanished; "
-                f"patch seen while moving: {np.mean(on_patch[args.warm_up : vanish]):.3f} of its pixels"
+                f"patch seen while moving: {np.mean(on_patch):.3f} of its pixels"
             )
     euroc(args.profiles, settings)
 

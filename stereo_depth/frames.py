@@ -131,7 +131,7 @@ class OutputOptions:
         ),
     )
     temporal_persistence: int = field(
-        default=3,
+        default=4,
         metadata=_spec("Temporal filter: frames of temporal_history a pixel must agree in to be output", 1, 8, 1),
     )
     temporal_history: int = field(default=8, metadata=_spec("Temporal filter: frames remembered per pixel", 1, 8, 1))

@@ -153,7 +153,8 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
         for m in read_messages(tmp_path / "processed", [f"{NS}/disparity"])[f"{NS}/disparity"]
     }
     assert len(offline) == summary.frames_out == 30
-    assert sum(np.isnan(d).all() for d in offline.values()) == 2  # nothing before 3 frames agree
+    persistence = options.output.temporal_persistence
+    assert sum(np.isnan(d).all() for d in offline.values()) == persistence - 1  # nothing before frames agree
 
     namespace = "/temporal"
     args = ["-p", "temporal_filter:=true", "-p", "max_waiting_frames:=30"]  # a busy machine drops no frame

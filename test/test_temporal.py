@@ -9,7 +9,7 @@ from stereo_depth.core.temporal import TemporalFilter, TemporalSettings, lead_in
 from stereo_depth.errors import ParameterError
 
 PERIOD_NS = 33_333_333
-SETTINGS = TemporalSettings()  # the defaults: alpha 0.4, delta 2 px, 3 of the last 8 frames
+SETTINGS = TemporalSettings()  # the defaults: alpha 0.4, delta 2 px, 4 of the last 8 frames
 CALIBRATION = ("camera", 1)
 
 
@@ -32,7 +32,8 @@ def test_a_pixel_seen_once_never_reaches_the_output() -> None:
     assert all(np.isnan(o[1, 2]) for o in out)
     assert all(o[2, 3] != 50.0 for o in out)
     assert out[7][2, 3] == pytest.approx(20.0)  # the surface's value stands in for the one-off
-    assert np.isnan(out[1]).all() and np.isnan(out[2]).sum() == 1  # valid once seen in 3 frames
+    seen = SETTINGS.persistence
+    assert np.isnan(out[seen - 2]).all() and np.isnan(out[seen - 1]).sum() == 1  # valid once seen in 4 frames
 
 
 def test_noise_is_averaged_and_a_changed_value_restarts_the_average() -> None:

@@ -45,7 +45,7 @@ class TemporalSettings:
 
     alpha: float = 0.4
     delta: float = 2.0
-    persistence: int = 3
+    persistence: int = 4
     history: int = MAX_HISTORY
     motion_reset: float = 0.0  # share of changed pixels that restarts every pixel; 0: off
 
