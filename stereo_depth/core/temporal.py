@@ -121,7 +121,7 @@ class TemporalFilter:
             None if confidence is None else confidence.reshape(-1),
             self._values[self._head],
             None if self._weights is None else self._weights[self._head],
-            self._values[previous] if self._frames else None,
+            self._values[previous] if self._frames and settings.motion_reset > 0 else None,  # the motion test's
             np.float32(settings.delta),
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
@@ -217,6 +217,7 @@ def _filter_pixels(
     acc = np.empty((8, BLOCK), np.float32)
     zero = np.float32(0.0)
     one = np.float32(1.0)
+    nan = np.float32(np.nan)
     no_weights = np.ones(BLOCK, np.float32)
     for start in range(0, out.size, BLOCK):
         n = min(BLOCK, out.size - start)
@@ -251,14 +252,13 @@ def _filter_pixels(
                 acc[6, i] += weight * in_b
                 acc[7, i] += weight * in_b * value
             decay *= one - alpha
-        for i in range(n):
+        for i in range(n):  # both candidates' results, then a choice: no branch to mispredict
             a, b = cand_a[i], cand_b[i]
-            if a != HOLE and acc[0, i] >= persistence and acc[1, i] <= acc[0, i]:
-                out[start + i] = acc[3, i] / acc[2, i] if acc[2, i] > zero else a
-            elif b != HOLE and abs(a - b) > delta and acc[4, i] >= persistence and acc[5, i] <= acc[4, i]:
-                out[start + i] = acc[7, i] / acc[6, i] if acc[6, i] > zero else b
-            else:
-                out[start + i] = np.nan
+            use_a = (a != HOLE) & (acc[0, i] >= persistence) & (acc[1, i] <= acc[0, i])
+            use_b = (b != HOLE) & (abs(a - b) > delta) & (acc[4, i] >= persistence) & (acc[5, i] <= acc[4, i])
+            mean_a = acc[3, i] / acc[2, i] if acc[2, i] > zero else a
+            mean_b = acc[7, i] / acc[6, i] if acc[6, i] > zero else b
+            out[start + i] = mean_a if use_a else (mean_b if use_b else nan)
 
 
 @functools.cache
