@@ -1,17 +1,21 @@
 """Temporal filter: per-pixel disparity over the last few frames, so a match seen once never becomes a point.
 
 Navigation stacks mark what a depth frame shows; a pixel that is wrong in one frame is a ghost obstacle.
-For each pixel the filter keeps its disparity in the last `history` frames (NaN where invalid) and, per
-frame, outputs:
+For each pixel the filter keeps its disparity in the last `history` frames (HOLE where invalid) and,
+per frame, looks at two candidates:
 
-- the anchor: the newest valid value (this frame's, or, when this frame has a hole there, the previous
-  frame's: a one-frame dropout is bridged, an older value never is, so an object that left leaves a trail
-  of at most one frame);
-- valid only when at least `persistence` of those frames agree with the anchor within `delta` px
-  (RealSense's "valid in k of the last n"): a wrong match seen once has no support;
-- the value: an exponential average (`alpha`, the newest frame's weight; older frames' weights fall by
-  1 - alpha per frame) of the agreeing frames only, each also weighted by the matcher's confidence when
-  it gives one (census_sgm). A frame that differs by more than `delta` restarts the average.
+- a: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a hole of up to 2 frames keeps the
+  last value; older values never stand in, so an object that left leaves a trail of at most 2 frames);
+- b: the previous frame's value, when a is this frame's.
+
+a is output when at least `persistence` of the remembered frames agree with it within `delta` px
+(RealSense's "valid in k of the last n": a wrong match seen once has no support) and no more disagree
+than agree (a pixel that flips between two values is not output); else b, when it differs from a and
+passes the same test (a new value seen once, an outlier or the first frame of a change, shows the
+previous one); else nothing. The value is an exponential average of the agreeing frames only (`alpha`,
+the newest frame's weight; older frames' weights fall by 1 - alpha per frame), each also weighted by the
+matcher's confidence when it gives one (census_sgm): a value that differs by more than `delta` restarts
+the average.
 
 The output is a function of the last frames alone (no recursion over the whole stream), so a bag cut into
 shards gives bit-identical results once each shard is fed `lead_in_frames` frames before its first.
@@ -87,7 +91,6 @@ class TemporalFilter:
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=MAX_HISTORY)  # the last stamps, across restarts
         self._calibration: Hashable = None
-        self.restarts = 0
 
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
@@ -128,7 +131,6 @@ class TemporalFilter:
         if self._frames == 0 or moved or self._stamp_breaks(stamp_ns):
             self._values[np.arange(history) != self._head] = HOLE
             self._frames = 0
-            self.restarts += 1
         self._stamps.append(stamp_ns)
         self._calibration = calibration
         self._frames += 1
