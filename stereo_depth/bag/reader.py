@@ -365,15 +365,31 @@ class StereoBagReader:
                 self.stats.matched += 1
                 if self.stats.first_ns is None:
                     self.stats.first_ns = stamp
+                    self._check_lead_in(len(lead_in))
                     yield from lead_in
                 yield StereoMessages(stamp, *self._four(msgs))
         for stamp, msgs in sync.flush():
             self.stats.matched += 1
             if self.stats.first_ns is None:
                 self.stats.first_ns = stamp
+                self._check_lead_in(len(lead_in))
                 yield from lead_in
             yield StereoMessages(stamp, *self._four(msgs))
         self.stats.unmatched_at_end = sync.pending()
+
+    def _check_lead_in(self, found: int) -> None:
+        """A window that needs lead-in frames and finds fewer in its lead-in time, with more of the bag
+        before it, would start from another state than one pass: refused, not silently different."""
+        start = self.window.start_ns
+        if found >= self.lead_in_frames or start is None:
+            return
+        if start - self.window.lead_ns > self._reader.time_span[0]:
+            msg = (
+                f"{self.path}: the window from stamp {start} needs {self.lead_in_frames} frames before it "
+                f"(temporal_filter) but its {self.window.lead_ns / 1e9:g} s lead-in holds {found}; process this "
+                "bag without --shard-seconds"
+            )
+            raise BagError(msg)
 
     def _four(self, messages: tuple[Any, ...]) -> tuple[Any, Any, Any, Any]:
         calibration = self.choice.calibration
