@@ -31,6 +31,7 @@ from stereo_depth.core.camera import StereoCamera, rectified_input, with_baselin
 from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
+from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
@@ -209,6 +210,22 @@ def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: InputNames 
         raise type(exc)(f"{names.left_image} and {names.right_image}: {exc}") from exc
 
 
+def filter_over_time(
+    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, options: OutputOptions
+) -> None:
+    """`temporal_filter`: the frame's disparity replaced by its temporally filtered one (timed as stage
+    "temporal"), so disparity, depth and points2 all carry it. Call it once per frame in stamp order,
+    after matching and before the outputs; off, it forgets what it had seen."""
+    if not options.temporal_filter:
+        temporal.reset()
+        return
+    start = time.perf_counter()
+    result.disparity = temporal.apply(
+        result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), options.temporal
+    )
+    result.timings_ms["temporal"] = (time.perf_counter() - start) * 1000.0
+
+
 # ---------------------------------------------------------------- match outputs
 
 
@@ -330,9 +347,11 @@ class CloudRate:
 
 class OutputState:
     """What one stream of frames keeps between frames for its outputs: the rectified mask, the
-    organized cloud's bytes and the stamp of the last cloud (points_max_rate)."""
+    organized cloud's bytes, the stamp of the last cloud (points_max_rate) and the temporal filter's
+    history (touched only where frames are in stamp order: `filter_over_time`)."""
 
     def __init__(self) -> None:
+        self.temporal = TemporalFilter()
         self.masks = RectifiedMasks()
         self.cloud_buffer = CloudBuffer()
         self.clearing_buffer = CloudBuffer()  # points2_clearing's own: points2 may still hold the other
@@ -502,6 +521,7 @@ def frame_outputs(
     (`process`) or on the node's second thread. Nothing due (and no `with_geometry`, which a PLY
     needs): `send_cloud({}, None)` at once.
     """
+    filter_over_time(state.temporal, frame, result, output)
     send_images(image_outputs(types, frame.header, result, params, wanted))
     if frame.camera.no_depth_reason is not None:  # no baseline: disparity only (the caller warns once)
         send_cloud({}, None)

@@ -326,6 +326,7 @@ class StereoSet:
     left_info: Any
     right_image: Any
     right_info: Any
+    lead_in: bool = False  # read before a shard's window only to fill the temporal filter (not written)
 
     @classmethod
     def paired(cls, stamp_ns: int, messages: Sequence[Any]) -> StereoSet:

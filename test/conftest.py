@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,19 @@ def read_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     image = cv2.imread(str(path), flags)
     assert image is not None, f"cannot read {path}"
     return image
+
+
+def euroc_sequence(folder: Path, frames: int) -> Path:
+    """A EuRoC-style sequence folder (left/, right/, the calibration) holding the bundled EuRoC frames
+    over and over, 0.1 s apart: a moving camera for as many frames as a test needs."""
+    for side in ("left", "right"):
+        (folder / side).mkdir(parents=True)
+        images = sorted((EUROC / side).glob("*.png"))
+        for k in range(frames):
+            shutil.copy(images[k % len(images)], folder / side / f"{1_000_000_000 + k * 100_000_000}.png")
+    for name in ("cam0_sensor.yaml", "cam1_sensor.yaml"):
+        shutil.copy(EUROC / name, folder / name)
+    return folder
 
 
 CALIBRATION_RTOL = 1e-9  # two computations of one calibration (file formats, code paths): not bit for bit

@@ -24,7 +24,7 @@ from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
 
-from conftest import SCENES
+from conftest import SCENES, euroc_sequence
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 FAST = ["--profile", "fast", "--set", "disparity_range=16", "--outputs", "disparity", "depth"]
@@ -280,3 +280,31 @@ def test_missing_ray_is_one_clear_error(
     code, errors, _ = run_fleet(capsys, str(BAGS / "middlebury"), "--out-dir", str(tmp_path / "out"), "--ray")
     assert code == 1 and len(errors) == 1 and "pip install" in errors[0] and "ray" in errors[0]
     assert not (tmp_path / "out" / "middlebury").exists()
+
+
+def test_shards_with_the_temporal_filter_equal_one_pass(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """The filter's state crosses shard borders: each shard is fed the frames before its first (lead-in)."""
+    (tmp_path / "inputs").mkdir()
+    bag = make_bag(tmp_path / "inputs" / "euroc", euroc_sequence(tmp_path / "sequence", 30))  # a moving camera
+    temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]  # holes: the filter's to handle
+    assert main(["process", str(bag), str(tmp_path / "one_pass"), *FAST, *temporal]) == 0
+    out = tmp_path / "sharded"
+    code, errors, _ = run_fleet(
+        capsys, str(bag), "--out-dir", str(out), "--jobs", "2", "--shard-seconds", "0.7", *temporal
+    )
+    assert code == 0, errors
+    one_pass = messages(tmp_path / "one_pass")
+    assert len(one_pass) == 2 * 30
+    assert messages(out / "euroc") == one_pass
+
+
+def test_shards_too_slow_for_the_temporal_filters_lead_in_are_refused(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """At 2 Hz a 2 s lead-in holds 4 frames, not the 16 the filter needs: an error, not a different output."""
+    (tmp_path / "inputs").mkdir()
+    bag = make_bag(tmp_path / "inputs" / "slow", *[SCENES / "artl"] * 12, rate=2.0)
+    temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]
+    code, errors, _ = run_fleet(capsys, str(bag), "--out-dir", str(tmp_path / "out"), "--shard-seconds", "3", *temporal)
+    assert code == 1 and len(errors) == 1 and "needs 16 frames before it" in errors[0], errors
+    assert not (tmp_path / "out" / "slow").exists()

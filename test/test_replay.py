@@ -18,14 +18,15 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.bag.process import process_bag
+from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.messages import disparity_from_msg, stamp_to_ns
+from stereo_depth.options import OutputOptions
 
-from conftest import EUROC
+from conftest import EUROC, euroc_sequence
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 NS = "/stereo"
@@ -136,3 +137,38 @@ def test_stereo_node_on_a_replayed_bag_matches_process(
         live = disparity_from_msg(message)
         np.testing.assert_array_equal(live, offline[stamp_to_ns(message.header.stamp)])
     ros.node.destroy_subscription(collector.subscription)
+
+
+def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
+    ros: RosHarness, large_images_env: dict[str, str], tmp_path: Path
+) -> None:
+    """The filter's state, live and offline: the same 30 frames of a moving camera give the same
+    filtered disparity bit for bit (a stereo_node of its own, fed through remaps)."""
+    bag = tmp_path / "euroc30"
+    assert main(["make-bag", str(euroc_sequence(tmp_path / "sequence", 30)), str(bag), "--rate", "10"]) == 0
+    options = ProcessOptions(outputs=("disparity",), output=OutputOptions(temporal_filter=True))
+    summary = process_bag(bag, tmp_path / "processed", make_params(), options)
+    offline = {
+        stamp_to_ns(m.header.stamp): disparity_from_msg(m)
+        for m in read_messages(tmp_path / "processed", [f"{NS}/disparity"])[f"{NS}/disparity"]
+    }
+    assert len(offline) == summary.frames_out == 30
+    persistence = options.output.temporal_persistence
+    assert sum(np.isnan(d).all() for d in offline.values()) == persistence - 1  # nothing before frames agree
+
+    namespace = "/temporal"
+    # A frame lost on a busy machine would change every filtered frame after it: queues hold them all.
+    args = ["-p", "temporal_filter:=true", "-p", "max_waiting_frames:=30", "-p", "queue_size:=30"]
+    node = NodeProcess("stereo_node", namespace, large_images_env, tmp_path, args)
+    with ros.running([node]):
+        collector = ros.collector(DisparityImage, f"{namespace}/disparity")
+        wait_until(lambda: collector.subscription.get_publisher_count() >= 1, "stereo_node's disparity matched")
+        inputs = ("left/image_raw", "left/camera_info", "right/image_raw", "right/camera_info")
+        remaps = [arg for topic in inputs for arg in ("--remap", f"{NS}/{topic}:={namespace}/{topic}")]
+        result = replay(bag, large_images_env, "--rate", "0.5", *remaps)
+        assert result.returncode == 0, result.stderr
+        wait_until(lambda: len(collector.stamps()) >= len(offline), f"{len(offline)} disparity frames", 2 * TIMEOUT_S)
+        assert sorted(collector.stamps()) == sorted(offline), node.output()
+        for message in collector.messages:
+            np.testing.assert_array_equal(disparity_from_msg(message), offline[stamp_to_ns(message.header.stamp)])
+        ros.node.destroy_subscription(collector.subscription)

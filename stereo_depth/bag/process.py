@@ -23,8 +23,18 @@ from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.errors import BagError, StereoDepthError
-from stereo_depth.frames import DEFAULT_OUTPUTS, Geometry, OutputState, decode_frame, frame_outputs, match_frame
+from stereo_depth.frames import (
+    DEFAULT_OUTPUTS,
+    Geometry,
+    InputNames,
+    OutputState,
+    decode_frame,
+    filter_over_time,
+    frame_outputs,
+    match_frame,
+)
 from stereo_depth.options import NodeOptions, OutputOptions
 from stereo_depth.sync import StereoSet
 
@@ -118,6 +128,23 @@ class FrameMessages:
         self.geometry = geometry
 
 
+def _lead_in(
+    pipeline: StereoPipeline,
+    inputs: StereoSet,
+    rectified: bool,
+    output: OutputOptions,
+    names: InputNames,
+    state: OutputState,
+) -> None:
+    """A frame before a shard's own: matched and fed to the temporal filter as one pass would, not written."""
+    try:
+        frame = decode_frame(inputs, pipeline, output, rectified=rectified, names=names)
+        result = match_frame(pipeline, frame, names)
+    except StereoDepthError:
+        return  # one pass skips it too
+    filter_over_time(state.temporal, frame, result, output)
+
+
 class Progress:
     """One `\r` line on stderr with frames/s, only when stderr is a terminal."""
 
@@ -183,7 +210,12 @@ def process_bag(
     start = time.perf_counter()
     with (
         StereoBagReader(
-            in_bag, namespace=options.namespace, sync=options.sync, choice=options.topics, window=options.window
+            in_bag,
+            namespace=options.namespace,
+            sync=options.sync,
+            choice=options.topics,
+            window=options.window,
+            lead_in_frames=lead_in_frames(options.output.temporal_history) if options.output.temporal_filter else 0,
         ) as reader,
         BagWriter(
             out_bag,
@@ -198,6 +230,9 @@ def process_bag(
         progress = Progress(reader.count(topics.names[0]), options.progress)
         state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for inputs in reader.frames():
+            if inputs.lead_in:  # a shard's frames before its first: only to fill the temporal filter
+                _lead_in(pipeline, inputs, topics.rectified, options.output, names, state)
+                continue
             out = FrameMessages()
             try:
                 frame = decode_frame(inputs, pipeline, options.output, rectified=topics.rectified, names=names)
@@ -226,7 +261,7 @@ def process_bag(
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))
             for stage, ms in result.timings_ms.items():
-                summary.stage_ms[stage] += ms
+                summary.stage_ms[stage] = summary.stage_ms.get(stage, 0.0) + ms  # "temporal" only when on
             _export(summary.frames_out, inputs.stamp_ns, result, out.geometry, params, options, summary)
             if on_frame is not None:
                 on_frame(summary.frames_out, inputs, result)

@@ -12,6 +12,8 @@ Messages go through `sync.Synchronizer` in the order they were recorded, as they
 
 from __future__ import annotations
 
+import dataclasses
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -273,8 +275,12 @@ class StereoBagReader:
         sync: NodeOptions | None = None,
         choice: TopicChoice | None = None,
         window: TimeWindow | None = None,
+        lead_in_frames: int = 0,
     ) -> None:
+        """`lead_in_frames`: with a window, yield (as `lead_in`) up to this many sets paired before its
+        start, just before its first own set."""
         self.path = Path(path)
+        self.lead_in_frames = lead_in_frames
         self.policy = sync or NodeOptions()  # the live node's sync options and defaults
         self.choice = choice or TopicChoice(namespace=namespace)
         self.window = window or TimeWindow()
@@ -318,30 +324,51 @@ class StereoBagReader:
         self.stats.sync = sync.counters
         role_of = {name: i for i, name in enumerate(inputs)}
         window = self.window
+        lead_in: deque[StereoSet] = deque(maxlen=self.lead_in_frames or 1)
         for topic, message in self._messages(inputs):
             role = role_of[topic]
             stamp_ns = stamp_to_ns(message.header.stamp)
             if window.owns(stamp_ns):
                 self._count_input(topic)
-            yield from self._owned(sync.add(role, stamp_ns, message))
+            yield from self._owned(sync.add(role, stamp_ns, message), lead_in)
             if self.stats.handoff_ns is not None:
                 break
         else:  # the end of what this window reads: sets that wait only for a camera_info go out
-            yield from self._owned(sync.flush())
+            yield from self._owned(sync.flush(), lead_in)
         self.stats.unmatched_at_end = sync.pending()
 
-    def _owned(self, sets: list[tuple[int, tuple[Any, ...]]]) -> Iterator[StereoSet]:
+    def _owned(self, sets: list[tuple[int, tuple[Any, ...]]], lead_in: deque[StereoSet]) -> Iterator[StereoSet]:
         """The sets the window owns. The first set past its end is the hand-off (set stamps only grow: the
-        window is complete); sets before its start were paired only to reach one pass's state there."""
+        window is complete); sets before its start were paired only to reach one pass's state there, and
+        the last `lead_in_frames` of them go out (as `lead_in`) just before the window's first set."""
         for stamp, msgs in sets:
             if self.window.stop_ns is not None and stamp >= self.window.stop_ns:
                 self.stats.handoff_ns = stamp
                 return
-            if self.window.owns(stamp):
-                self.stats.matched += 1
-                if self.stats.first_ns is None:
-                    self.stats.first_ns = stamp
-                yield self._stereo_set(stamp, msgs)
+            if not self.window.owns(stamp):
+                if self.lead_in_frames:
+                    lead_in.append(dataclasses.replace(self._stereo_set(stamp, msgs), lead_in=True))
+                continue
+            self.stats.matched += 1
+            if self.stats.first_ns is None:
+                self.stats.first_ns = stamp
+                self._check_lead_in(len(lead_in))
+                yield from lead_in
+            yield self._stereo_set(stamp, msgs)
+
+    def _check_lead_in(self, found: int) -> None:
+        """A window that needs lead-in frames and finds fewer in its lead-in time, with more of the bag
+        before it, would start from another state than one pass: refused, not silently different."""
+        start = self.window.start_ns
+        if found >= self.lead_in_frames or start is None:
+            return
+        if start - self.window.lead_ns > self._reader.time_span[0]:
+            msg = (
+                f"{self.path}: the window from stamp {start} needs {self.lead_in_frames} frames before it "
+                f"(temporal_filter) but its {self.window.lead_ns / 1e9:g} s lead-in holds {found}; process this "
+                "bag without --shard-seconds"
+            )
+            raise BagError(msg)
 
     def _stereo_set(self, stamp_ns: int, messages: tuple[Any, ...]) -> StereoSet:
         calibration = self.choice.calibration

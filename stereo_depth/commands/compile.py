@@ -1,4 +1,5 @@
-"""`stereo-depth compile`: build the census_sgm core's machine code ahead, so no first frame waits for it.
+"""`stereo-depth compile`: build the census_sgm core's (and the temporal filter's) machine code ahead, so
+no first frame waits for it.
 
 numba compiles the core on its first use (~30 s once per install, cached afterwards). Run this once after
 installing (or in a robot image's build step); it prints where the cache went.
@@ -16,9 +17,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from stereo_depth.core import temporal
     from stereo_depth.core.census_sgm import compile_kernels
 
     start = time.perf_counter()
     cache = compile_kernels()
+    temporal.compile_kernels()
     print(f"census_sgm core ready in {time.perf_counter() - start:.1f} s; numba cache: {cache}")
     return 0
