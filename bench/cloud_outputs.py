@@ -27,13 +27,12 @@ from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
-from stereo_depth.machine import print_machine
 from stereo_depth.messages import make_header
 from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 LAYOUTS = {
@@ -47,9 +46,7 @@ LAYOUTS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     name = sorted((EUROC / "left").glob("*.png"))[0].name
     left, right = (cv2.imread(str(EUROC / side / name), cv2.IMREAD_GRAYSCALE) for side in ("left", "right"))
     assert left is not None and right is not None, f"cannot read the EuRoC pair {name}"

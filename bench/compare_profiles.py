@@ -17,10 +17,9 @@ from stereo_depth.core.metrics import accuracy, colorize_disparity, label
 from stereo_depth.core.params import PROFILES, make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.machine import print_machine
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 
 def main() -> None:
@@ -29,9 +28,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--profiles", nargs="+", default=["stereo_image_proc", "fast", "default", "quality"])
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--markdown", action="store_true", help="the README's table (ms against the first profile)")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser, "the README's table (ms against the first profile)")
     scene = load_scene(args.scene)
     assert scene.gt is not None, "the scene needs ground truth"
     top = float(np.nanmax(scene.gt))

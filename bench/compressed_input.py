@@ -22,7 +22,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 from pipeline_stages import scaled_info
 
 from stereo_depth.core.camera import StereoCamera
@@ -31,7 +31,6 @@ from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
 from stereo_depth.frames import decode_image
-from stereo_depth.machine import print_machine
 from stereo_depth.messages import array_to_compressed, array_to_image, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -114,9 +113,7 @@ def measure(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     print(f"VGA {VGA[0]}x{VGA[1]}, default profile, medians of {args.repeat} interleaved runs")
     columns = ("KiB/img", "decode ms", "vs raw", "frame ms", "vs raw")
     if args.markdown:

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,9 @@ from stereo_depth.core.metrics import accuracy
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.machine import print_machine
+
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import parse_bench_arguments
 
 
 def main() -> None:
@@ -22,9 +25,7 @@ def main() -> None:
     parser.add_argument("scenes", nargs="+", type=Path)
     parser.add_argument("--profile", default="quality")
     parser.add_argument("--threshold", type=float, default=0.5)
-    parser.add_argument("--markdown", action="store_true", help="the README's sentence only (no table per scene)")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser, "the README's sentence only (no table per scene)")
     if not args.markdown:
         print(f"{'scene':36s}{'bad2_est':>10s}{'confident':>11s}{'share':>8s}")
     overall, confident, shares = [], [], []

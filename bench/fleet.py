@@ -26,10 +26,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 from offline_process import write_bag
-
-from stereo_depth.machine import print_machine
 
 BAGS = 4
 # A local instance on loopback: no usage statistics, and no token written to ~/.ray (Ray 2.60 creates
@@ -86,9 +84,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=150, help="frames per bag")
     parser.add_argument("--profile", default="default")
     parser.add_argument("--size", default="640x480")
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     width, height = map(int, args.size.split("x"))
     print(f"{BAGS} bags x {args.frames} frames {args.size}, profile {args.profile}, {os.cpu_count()} cores")
     if args.markdown:

@@ -3,7 +3,10 @@ markdown table, so `make bench-readme` output pastes into README.md as it is."""
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Iterable
+
+from stereo_depth.machine import print_machine
 
 
 def table_row(cells: Iterable[object]) -> str:
@@ -24,3 +27,12 @@ def times(ratio: float) -> str:
 def ratio(value: float, baseline: float) -> float:
     """value / baseline; NaN where the baseline is 0 (a run that delivered nothing)."""
     return value / baseline if baseline else float("nan")
+
+
+def parse_bench_arguments(parser: argparse.ArgumentParser, markdown: str = "the README's table") -> argparse.Namespace:
+    """How a bench that the README quotes starts: `--markdown` added, its arguments read, then the
+    machine header printed before any figure."""
+    parser.add_argument("--markdown", action="store_true", help=markdown)
+    args = parser.parse_args()
+    print_machine()
+    return args

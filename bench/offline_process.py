@@ -40,12 +40,11 @@ from stereo_depth.core.matching import OpenCVMatcher, create_matcher
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.frames import OutputState, decode_frame, frame_outputs, match_frame
-from stereo_depth.machine import print_machine
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import FRAME_ID, camera_infos, frames
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 NAMESPACE = "/stereo"
 PERIOD_NS = 33_333_333
@@ -153,9 +152,7 @@ def main() -> None:
     parser.add_argument("--profiles", nargs="+", default=["stereo_image_proc", "default"])
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x720"])
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), metavar="V")
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {args.frames} frames, load {' '.join(load)}")
     if args.markdown:

@@ -24,11 +24,10 @@ import numpy as np
 
 from stereo_depth.core.matching import Matcher, OpenCVMatcher, create_matcher, opencv_sgbm
 from stereo_depth.core.params import StereoParams, make_params
-from stereo_depth.machine import print_machine
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import frames
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 SGBM = make_params("stereo_image_proc", {"stereo_algorithm": 1})
 HH = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": 1})
@@ -68,9 +67,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--frames", type=int, default=10)
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     width, height = (int(v) for v in args.size.split("x"))
     ((left, right),) = list(frames(width, height, 1))
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {width}x{height}, anchor frames")

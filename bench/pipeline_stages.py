@@ -31,12 +31,11 @@ from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import disparity_message
-from stereo_depth.machine import print_machine
 from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import table_header, table_row, times
+from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 RESOLUTIONS = ((640, 480), (1280, 720))
@@ -115,9 +114,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=20)
     parser.add_argument("--profiles", nargs="+", default=["default", "fast", "stereo_image_proc"])
     parser.add_argument("--disparity-range", type=int, default=64)
-    parser.add_argument("--markdown", action="store_true", help="the README's table")
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
     if args.markdown:
         columns = ("profile", "size", "match ms", "pipeline ms", "node ms", "bare OpenCV ms", "node / bare")

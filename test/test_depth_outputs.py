@@ -19,7 +19,7 @@ import yaml
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
-from test_nodes import Pair, StereoInput, euroc_pair
+from test_nodes import Pair, StereoInput, euroc_pair, send_with_parameters
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
@@ -60,16 +60,8 @@ def nav_outputs(ros: RosHarness, node: NodeProcess) -> dict[str, Any]:
 
 def send(ros: RosHarness, nav: dict[str, Any], pair: Pair, wanted: tuple[str, ...], **options: Any) -> dict[str, Any]:
     """Set `options`, send the pair once, return the `wanted` outputs of that frame; options restored."""
-    fqn = f"{NS}/stereo_node"
-    previous = ros.get_parameters(fqn, *options)
-    results = ros.set_parameters(fqn, **options)
-    assert all(r.successful for r in results), [r.reason for r in results]
-    try:
-        stamp = next(_stamps)
-        nav["inputs"].publish(pair, stamp)
-        return {name: nav[name].wait_stamp(stamp) for name in wanted}
-    finally:
-        ros.set_parameters(fqn, **previous)
+    outputs = {name: nav[name] for name in wanted}
+    return send_with_parameters(ros, f"{NS}/stereo_node", nav["inputs"], outputs, pair, next(_stamps), **options)
 
 
 def xyz_of(cloud: Any) -> np.ndarray:

@@ -89,6 +89,21 @@ class StereoInput:
             self.publishers[index].publish(messages[index])
 
 
+def send_with_parameters(
+    ros: RosHarness, node_fqn: str, inputs: StereoInput, outputs: dict[str, Any], pair: Pair, stamp: int, **options: Any
+) -> dict[str, Any]:
+    """Set `options` on the node, send `pair` once at `stamp`, return each of `outputs`' message of that
+    frame (collectors by name); the options are restored afterwards."""
+    previous = ros.get_parameters(node_fqn, *options)
+    results = ros.set_parameters(node_fqn, **options)
+    assert all(r.successful for r in results), [r.reason for r in results]
+    try:
+        inputs.publish(pair, stamp)
+        return {name: collector.wait_stamp(stamp) for name, collector in outputs.items()}
+    finally:
+        ros.set_parameters(node_fqn, **previous)
+
+
 class Pair:
     def __init__(self, left: np.ndarray, right: np.ndarray, infos: tuple[Calibration, Calibration]) -> None:
         self.left, self.right = left, right
