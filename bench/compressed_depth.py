@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,19 +31,14 @@ from stereo_depth.frames import (
     geometry_outputs,
     result_geometry,
 )
-from stereo_depth.machine import print_machine
 from stereo_depth.messages import depth_to_compressed_depth, make_header
 from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import parse_bench_arguments, table_header
+
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
-
-
-def cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown CPU"
 
 
 def median_ms(work: Callable[[], Any], repeat: int) -> tuple[float, float, Any]:
@@ -59,8 +55,7 @@ def median_ms(work: Callable[[], Any], repeat: int) -> tuple[float, float, Any]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=10)
-    args = parser.parse_args()
-    print_machine()
+    args = parse_bench_arguments(parser)
     pipeline = StereoPipeline(make_params())
     camera = pipeline.camera_for(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml"))
     header = make_header(RCLPY_TYPES, 1, "cam0")
@@ -73,9 +68,12 @@ def main() -> None:
         depths.append(geometry.depth.copy())
         geometries.append((frame, geometry))
     height, width = depths[0].shape
-    print(f"{cpu_name()}; {len(depths)} EuRoC frames {width}x{height}, default profile; medians of {args.repeat} runs")
-    print("| depth | codec | raw bytes | compressedDepth bytes | ratio | encode ms (wall / CPU) |")
-    print("|---|---|---|---|---|---|")
+    print(f"{len(depths)} EuRoC frames {width}x{height}, default profile; medians of {args.repeat} runs")
+    print(
+        table_header(
+            ("depth", "codec", "raw bytes", "compressedDepth bytes", "raw / compressed", "encode ms (wall / CPU)")
+        )
+    )
     for encoding in ("32FC1", "16UC1"):
         for codec in ("png", "rvl"):
             sizes, walls, cpus = [], [], []

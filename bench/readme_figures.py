@@ -89,9 +89,24 @@ def scenes(run: Run) -> list[str]:
     return found[:4] if run.args.quick else found
 
 
+def parameters(run: Run) -> bool:
+    print("What the left-right check keeps (`bench/left_right_check.py`):\n")
+    scenes = ("test/data/scenes/artl", "test/data/scenes/cones", "test/data/scenes/tsukuba")
+    return run.bench("left_right_check.py", *scenes)
+
+
 def depth_for_navigation(run: Run) -> bool:
     print("What a cloud costs per VGA-sized frame (752x480 EuRoC, `bench/cloud_outputs.py`):\n")
-    return run.bench("cloud_outputs.py", quick=("--repeat", "2"))
+    ok = run.bench("cloud_outputs.py", quick=("--repeat", "2"))
+    print("\nWhat depth/compressedDepth costs per 752x480 EuRoC depth frame (`bench/compressed_depth.py`):\n")
+    ok = run.bench("compressed_depth.py", quick=("--repeat", "2")) and ok
+    print("\nThe temporal filter over time (`bench/temporal.py`):\n")
+    bundled = [f"test/data/scenes/{name}" for name in ("artl", "cones", "tsukuba")]
+    more = [
+        str(run.args.data / name) for name in ("middlebury2006/aloe", "middlebury2006/baby1", "middlebury2003/teddy")
+    ]
+    found = [*bundled, *(path for path in more if Path(path).is_dir())]
+    return run.bench("temporal.py", "--scenes", *found, quick=("--frames", "12", "--warm-up", "4")) and ok
 
 
 def inputs_and_outputs_over_dds(run: Run) -> bool:
@@ -173,6 +188,7 @@ def performance(run: Run) -> bool:
 
 # README heading -> what prints its figures, in the README's order
 SECTIONS: dict[str, Callable[[Run], bool]] = {
+    "Parameters": parameters,
     "Depth for navigation and mapping": depth_for_navigation,
     "Inputs and outputs over DDS": inputs_and_outputs_over_dds,
     "Recorded bags": recorded_bags,
@@ -181,7 +197,8 @@ SECTIONS: dict[str, Callable[[Run], bool]] = {
     "Performance": performance,
 }
 
-CENSUS_SECTIONS = {"Profiles and accuracy", "Performance"}  # those that run the census_sgm core
+# those that run the census_sgm core (or numba kernels beside it)
+CENSUS_SECTIONS = {"Parameters", "Depth for navigation and mapping", "Profiles and accuracy", "Performance"}
 
 
 def machine_header() -> tuple[str, str]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -35,8 +36,10 @@ from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.core.temporal import TemporalFilter, TemporalSettings
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import Scene, load_scene
-from stereo_depth.machine import print_machine
 from stereo_depth.options import output_options
+
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import parse_bench_arguments, table_header, table_row
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted((ROOT / "test/data/scenes").iterdir())
@@ -173,18 +176,40 @@ def run(
     return outs, gts, float(np.median(times)) if times else 0.0
 
 
-def print_row(name: str, profile: str, label: str, row: Row) -> None:
-    print(
-        f"{name:28s}{profile:9s}{label:6s}{row.flicker:9.4f}{row.temporal_std:9.3f}{row.ghosts:10.5f}"
-        f"{row.bad2_est:9.4f}{row.density:9.4f}{row.ms:8.2f}"
-    )
+MARKDOWN_COLUMNS = (
+    "sequence",
+    "profile",
+    "flicker, on / off",
+    "ghost points, on / off",
+    "bad-2 of estimated, on - off",
+    "density, on - off",
+    "ms",
+)
 
 
-def header() -> None:
+def header(markdown: bool) -> None:
+    if markdown:
+        print(table_header(MARKDOWN_COLUMNS))
+        return
     print(
         f"{'sequence':28s}{'profile':9s}{'filter':6s}{'flicker':>9s}{'t-std':>9s}{'ghosts':>10s}"
         f"{'bad2est':>9s}{'density':>9s}{'ms':>8s}"
     )
+
+
+def report(name: str, profile: str, off: Row, on: Row, markdown: bool) -> None:
+    """One sequence without and with the filter: two rows, or one README row of on/off comparisons."""
+    if markdown:
+        ratio = lambda a, b: f"{a / b:.2f}" if b > 0 else "-"  # noqa: E731
+        cells = (name, f"`{profile}`", ratio(on.flicker, off.flicker), ratio(on.ghosts, off.ghosts))
+        bad2 = "-" if np.isnan(on.bad2_est) else f"{on.bad2_est - off.bad2_est:+.4f}"
+        print(table_row((*cells, bad2, f"{on.density - off.density:+.3f}", f"{on.ms:.1f}")))
+        return
+    for label, row in (("off", off), ("on", on)):
+        print(
+            f"{name:28s}{profile:9s}{label:6s}{row.flicker:9.4f}{row.temporal_std:9.3f}{row.ghosts:10.5f}"
+            f"{row.bad2_est:9.4f}{row.density:9.4f}{row.ms:8.2f}"
+        )
 
 
 def trail_frames(disparities: list[np.ndarray], gts: list[np.ndarray], vanish: int, d_obj: float) -> int:
@@ -206,25 +231,47 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--warm-up", type=int, default=8)
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="temporal_* options")
-    args = parser.parse_args()
+    args = parse_bench_arguments(parser)
     values = dict(item.split("=", 1) for item in args.set)
     options = output_options({"temporal_filter": "true", **values})
     settings = options.temporal
-    print_machine()
-    print(f"temporal filter: {settings}")
-    header()
+    print(f"temporal filter: {settings}; {args.frames} frames a sequence, the first {args.warm_up} not scored")
+    header(args.markdown)
     summary: dict[str, list[tuple[Row, Row]]] = {}
     scenes = [load_scene(path) for path in args.scenes]
     for profile in args.profiles:
         for scene in scenes:
             params = make_params(profile, {"disparity_range": scene.disparity_range()})
             rows = []
-            for label, chosen in (("off", None), ("on", settings)):
+            for chosen in (None, settings):
                 pipeline = StereoPipeline(params)
                 outs, gts, ms = run(pipeline, static_sequence(scene, args.frames, 1), chosen, None, args.warm_up)
                 rows.append(metrics(outs, gts, ms))
-                print_row(f"static {scene.name}", profile, label, rows[-1])
+            report(f"static {scene.name}", profile, rows[0], rows[1], args.markdown)
             summary.setdefault(profile, []).append((rows[0], rows[1]))
+    notes = []
+    texture = scenes[-1].left
+    for profile in args.profiles:
+        scene = scenes[0]
+        vanish = args.frames - 8
+        d_obj = float(int(np.nanmax(scene.gt)) + 8) if scene.gt is not None else 0.0
+        params = make_params(profile, {"disparity_range": -(-int(d_obj + 16) // 16) * 16})
+        rows = []
+        for chosen in (None, settings):
+            pipeline = StereoPipeline(params)
+            frames = moving_sequence(scene, texture, args.frames, vanish, 2)
+            outs, gts, ms = run(pipeline, frames, chosen, None, 0)
+            rows.append(metrics(outs[args.warm_up :], gts[args.warm_up :], ms))
+            moving = zip(outs[args.warm_up : vanish], gts[args.warm_up : vanish], strict=True)
+            on_patch = [np.isfinite(d[np.abs(g - d_obj) < 0.5]).mean() for d, g in moving]
+            notes.append(
+                f"moving {scene.name}, {profile}, filter {'on' if chosen else 'off'}: trail gone "
+                f"{trail_frames(outs, gts, vanish, d_obj)} frames after the patch vanished; patch seen while "
+                f"moving: {np.mean(on_patch):.3f} of its pixels"
+            )
+        report(f"moving {scene.name}", profile, rows[0], rows[1], args.markdown)
+    euroc(args.profiles, settings, args.markdown)
+    print()
     for profile, pairs in summary.items():
         worst_flicker = max(on.flicker / max(off.flicker, 1e-9) for off, on in pairs)
         worst_ghosts = max(on.ghosts / max(off.ghosts, 1e-9) for off, on in pairs)
@@ -234,25 +281,8 @@ def main() -> None:
             f"static, {profile}, worst scene of {len(pairs)}: flicker on/off {worst_flicker:.3f}, ghosts on/off "
             f"{worst_ghosts:.3f}, bad-2 of estimated on-off {worst_bad2:+.4f}, density on-off {worst_density:+.4f}"
         )
-    texture = scenes[-1].left
-    for profile in args.profiles:
-        scene = scenes[0]
-        vanish = args.frames - 8
-        d_obj = float(int(np.nanmax(scene.gt)) + 8) if scene.gt is not None else 0.0
-        params = make_params(profile, {"disparity_range": -(-int(d_obj + 16) // 16) * 16})
-        for label, chosen in (("off", None), ("on", settings)):
-            pipeline = StereoPipeline(params)
-            frames = moving_sequence(scene, texture, args.frames, vanish, 2)
-            outs, gts, ms = run(pipeline, frames, chosen, None, 0)
-            row = metrics(outs[args.warm_up :], gts[args.warm_up :], ms)
-            print_row(f"moving {scene.name}", profile, label, row)
-            moving = zip(outs[args.warm_up : vanish], gts[args.warm_up : vanish], strict=True)
-            on_patch = [np.isfinite(d[np.abs(g - d_obj) < 0.5]).mean() for d, g in moving]
-            print(
-                f"    trail gone {trail_frames(outs, gts, vanish, d_obj)} frames after the patch vanished; "
-                f"patch seen while moving: {np.mean(on_patch):.3f} of its pixels"
-            )
-    euroc(args.profiles, settings)
+    for note in notes:
+        print(note)
 
 
 def grey(path: Path) -> np.ndarray:
@@ -261,7 +291,7 @@ def grey(path: Path) -> np.ndarray:
     return image
 
 
-def euroc(profiles: list[str], settings: TemporalSettings) -> None:
+def euroc(profiles: list[str], settings: TemporalSettings, markdown: bool) -> None:
     """The bundled EuRoC frames (raw, distorted, 752x480, 0.6 s apart): no ground truth, so flicker,
     density and time only."""
     left_info, right_info = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
@@ -270,10 +300,12 @@ def euroc(profiles: list[str], settings: TemporalSettings) -> None:
     for profile in profiles:
         pipeline = StereoPipeline(make_params(profile))
         camera = pipeline.camera_for(left_info, right_info)
-        for label, chosen in (("off", None), ("on", settings)):
+        rows = []
+        for chosen in (None, settings):
             frames = ((left, right, np.zeros(left.shape, np.float32)) for left, right in images)
             outs, _, ms = run(pipeline, frames, chosen, camera, 0)
-            print_row(f"euroc {len(images)} frames", profile, label, metrics(outs, None, ms))
+            rows.append(metrics(outs, None, ms))
+        report(f"EuRoC, {len(images)} frames 0.6 s apart", profile, rows[0], rows[1], markdown)
 
 
 if __name__ == "__main__":

@@ -92,13 +92,15 @@ def free_port() -> int:
 @pytest.fixture(scope="module", autouse=True)
 def worker_settings() -> Iterator[None]:
     """Ray on loopback for tests: no token file written to ~/.ray (which a later head would then
-    demand), no usage statistics. Workers (Ray's and the local pool's inherit this environment) match
-    on one thread each, so two of them leave the test files running beside this one some CPU."""
+    demand), no usage statistics. Workers (Ray's and the local pool's inherit this environment) run
+    OpenCV on one thread each, so two of them leave the test files running beside this one some CPU;
+    numba's count each worker sets itself (fleet/backends.py). NUMBA_NUM_THREADS is not changed here:
+    numba in this process reads it again at each compile and refuses a value other than the one its
+    threads started with ("Cannot set NUMBA_NUM_THREADS ... once the threads have been launched")."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("RAY_AUTH_MODE", "disabled")
         patch.setenv("RAY_USAGE_STATS_ENABLED", "0")
         patch.setenv("OPENCV_FOR_THREADS_NUM", "1")
-        patch.setenv("NUMBA_NUM_THREADS", "1")
         yield
 
 

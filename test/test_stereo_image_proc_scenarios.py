@@ -121,8 +121,10 @@ def cloud_inputs(ros: RosHarness, nodes: dict[str, NodeProcess], pair_inputs: In
     topics = {"/sip/left/image_rect_color": Image, "/sip/disparity": DisparityImage}
     inputs = Inputs(ros, topics, subscribers=3)
     inputs.publishers.update(pair_inputs.publishers)
-    for name in ("/sip/left/camera_info", "/sip/right/camera_info"):
-        wait_until(lambda n=name: ros.node.count_subscribers(n) >= 4, f"{name} matched by every node")
+    for name in ("/sip/left/camera_info", "/sip/right/camera_info"):  # matched by the publisher itself: this
+        # process's view of the graph (count_subscribers) can be ahead of what the publisher has matched
+        publisher = inputs.publishers[name]
+        wait_until(lambda p=publisher: p.get_subscription_count() >= 4, f"{name} matched by every node")
     return inputs
 
 
