@@ -71,7 +71,7 @@ def e2e_rows(work: Path, quick: bool, *options: str) -> dict[tuple[str, str], di
         print(f"(failed: {' '.join(options)}; see the output above on stderr)")
         return None
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for row in json.loads(report.read_text()):
+    for row in json.loads(report.read_text())["runs"]:  # e2e_dds --json: {"runs": [...], "anchor": [...]}
         for output in (row[name] for name in OUTPUTS if row[name]):  # no output seen: no latency, NaN
             output.update({key: output.get(key, NAN) for key in LATENCIES})
         runs.setdefault((row["case"], row["profile"]), []).append(row)
