@@ -24,7 +24,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
-from test_nodes import Pair, StereoInput, euroc_pair, send_with_parameters
+from test_nodes import Pair, StereoInput, euroc_pair, send_with_parameters, wait_until_delivered
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
@@ -264,9 +264,7 @@ def test_compressed_depth_is_encoded_only_while_someone_subscribes(
             keys: set[str] = wait_until(reported, f"a diagnostics report with {stage}")
             return keys
 
-        stamp = next(_stamps)
-        inputs.publish(euroc, stamp)
-        depth.wait_stamp(stamp)
+        wait_until_delivered(inputs, depth, euroc)  # the node's depth publisher has matched this collector
         stages = stages_once_reported("publish depth time (ms)")
         assert "publish depth/compressedDepth time (ms)" not in stages  # nobody listens: never built
 

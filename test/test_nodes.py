@@ -226,12 +226,13 @@ def test_stereo_node_output_equals_offline_pipeline(live: dict[str, Any], artl: 
     np.testing.assert_array_equal(rgb, pack_rgb(artl.left))  # identity rectification: scene colours
 
 
-def wait_until_chain_delivers(inputs: StereoInput, output: Any, pair: Pair, every_s: float = 3.0) -> None:
-    """Probe sets until one comes out at the end of a node chain. Each node publishes to the subscribers
-    it has discovered itself, and this process's view of the graph can be ahead of a node's: a frame sent
-    when this process sees every edge can still be dropped inside the chain (rectify_node published
-    left/image_rect before it had matched point_cloud_node). One probe through the whole chain proves
-    every edge matched; discovery is not undone, so the frames after it arrive."""
+def wait_until_delivered(inputs: StereoInput, output: Any, pair: Pair, every_s: float = 3.0) -> None:
+    """Probe sets until one comes out of `output` (a node, or the end of a node chain). Each node
+    publishes, and builds outputs lazily, for the subscribers it has discovered itself, and this process's
+    view of the graph can be ahead of a node's: a frame sent when this process sees every edge can still
+    be dropped (rectify_node published left/image_rect before it had matched point_cloud_node; a fresh
+    stereo_node built no depth for a collector it had not matched yet). One probe through proves every
+    edge matched; discovery is not undone, so the frames after it arrive."""
     probes: list[int] = []
     deadline = time.monotonic() + TIMEOUT_S * 3
     while time.monotonic() < deadline:
@@ -253,7 +254,7 @@ def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: 
         wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "split outputs matched")
     split_inputs = StereoInput(ros, "/split")
     split_inputs.wait_matched(infos=3)  # camera_info goes to rectify_node, disparity_node and point_cloud_node
-    wait_until_chain_delivers(split_inputs, split_points, euroc)
+    wait_until_delivered(split_inputs, split_points, euroc)
 
     stamp = next(_stamps)
     split_inputs.publish(euroc, stamp)
