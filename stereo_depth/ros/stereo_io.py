@@ -504,6 +504,11 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # The signal's SystemExit raised inside rclpy's C++ code (converting a message being taken) comes
+        # out as pybind11's RuntimeError ("Unable to convert call argument"): still the signal's exit.
+        if not _SIGNALLED.is_set():
+            raise
     except (StereoDepthError, InvalidParameterValueException, InvalidParameterTypeException) as exc:
         rclpy.logging.get_logger("stereo_depth").error(f"cannot start: {exc}")
         code = 2
@@ -523,8 +528,12 @@ def exit_quietly_on_signals() -> None:
         signal.signal(sig, _exit_quietly)
 
 
+_SIGNALLED = threading.Event()  # SIGINT / SIGTERM arrived: the process is on its way out
+
+
 def _exit_quietly(signum: int, frame: FrameType | None) -> None:
     del signum, frame
+    _SIGNALLED.set()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)  # a second signal must not interrupt the cleanup
     raise SystemExit(0)
