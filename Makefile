@@ -56,15 +56,8 @@ test: venv
 # bounds; requirements-min.lock), on the core, bag and node tests: what an Ubuntu 24.04 / rosdep user has.
 MIN_TESTS := $(filter-out test/test_package.py test/test_fleet.py test/test_readme_claims.py,$(wildcard test/test_*.py))
 # Its numba keeps a cache of its own: one beside the sources is rewritten by whichever numba compiled last.
-# Open (issue 22): with these versions two runs over the same frames gave different disparities (sgbm,
-# 2026-12-01), so the tests that compare two runs bit for bit are left out here until that is explained.
-MIN_NOT_YET := $(addprefix --deselect=,test/test_bag.py::test_mcap_and_sqlite3_input_give_the_same_result \
-	test/test_recordings.py::test_ros1_bag_with_camera_info_gives_the_ros2_disparity_bit_for_bit \
-	test/test_recordings.py::test_euroc_ros1_bag_with_a_kalibr_camchain \
-	test/test_recordings.py::test_png_compressed_bag_equals_the_raw_bag \
-	test/test_recordings.py::test_left_and_right_name_the_topics_when_the_conventions_do_not_fit)
 test-min: $(MIN_VENV)/.installed
-	NUMBA_CACHE_DIR=$(MIN_VENV)/numba-cache $(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_NOT_YET) $(MIN_TESTS)
+	NUMBA_CACHE_DIR=$(MIN_VENV)/numba-cache $(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
 
 demo: venv
 	$(VENV)/bin/stereo-depth demo
