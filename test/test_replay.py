@@ -157,7 +157,8 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
     assert sum(np.isnan(d).all() for d in offline.values()) == persistence - 1  # nothing before frames agree
 
     namespace = "/temporal"
-    # A frame lost on a busy machine would change every filtered frame after it: queues hold them all.
+    # A frame lost on a busy machine would change every filtered frame after it: queues hold them all, and
+    # 2.5 frames/s keeps the node ahead of its input even with a second test file and a busy core beside it.
     args = ["-p", "temporal_filter:=true", "-p", "max_waiting_frames:=30", "-p", "queue_size:=30"]
     node = NodeProcess("stereo_node", namespace, large_images_env, tmp_path, args)
     with ros.running([node]):
@@ -165,7 +166,7 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
         wait_until(lambda: collector.subscription.get_publisher_count() >= 1, "stereo_node's disparity matched")
         inputs = ("left/image_raw", "left/camera_info", "right/image_raw", "right/camera_info")
         remaps = [arg for topic in inputs for arg in ("--remap", f"{NS}/{topic}:={namespace}/{topic}")]
-        result = replay(bag, large_images_env, "--rate", "0.5", *remaps)
+        result = replay(bag, large_images_env, "--rate", "0.25", *remaps)
         assert result.returncode == 0, result.stderr
         wait_until(lambda: len(collector.stamps()) >= len(offline), f"{len(offline)} disparity frames", 2 * TIMEOUT_S)
         assert sorted(collector.stamps()) == sorted(offline), node.output()

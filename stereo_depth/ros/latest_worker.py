@@ -22,6 +22,7 @@ from typing import Any
 DRAIN_S = 1.0  # a backlog the node cannot clear within this time is latency, not a burst
 RATE_WINDOW = 30  # arrivals over which the input rate is measured (spans a burst)
 SERVICE_WINDOW = 10  # jobs over which the time per job is measured
+MIN_JOBS = 3  # the time per job is known from this many: a node's first job also loads its compiled kernels
 PROBE_S = 1.0  # while every frame misses the budget, one is still run this often to measure again
 
 
@@ -39,8 +40,10 @@ class Load:
 
     def job_s(self) -> float | None:
         """The median: one job stalled by a busy machine is a hiccup the waiting places must ride out,
-        not a reason to take them away."""
-        return statistics.median(self.job_times) if self.job_times else None
+        not a reason to take them away. Unknown until MIN_JOBS have run: the first carries the start-up
+        (numba's kernels loaded or compiled, caches cold) and alone would make a keeping-up node look
+        overloaded."""
+        return statistics.median(self.job_times) if len(self.job_times) >= MIN_JOBS else None
 
     def waiting_places(self, capacity: int, parallel: int) -> int:
         """1 when jobs come faster than `parallel` threads finish them; up to `capacity` when the spare
