@@ -4,7 +4,7 @@ For each matcher setting, same frames, same run: ms per frame matching frame aft
 thread, and ms per frame with two threads each matching frames with a matcher of their own (as
 stereo_node's `matching_threads:=2` does); a throughput ratio near 1 means one frame already keeps
 both cores busy. OpenCV SGBM's SGBM and HH modes aggregate on one core by themselves; our matcher
-runs them on two overlapping halves at once (StripSGBM, bit-identical output): the "OpenCV whole
+runs them on two overlapping halves at once (matching.Halves, bit-identical output): the "OpenCV whole
 image" rows time the plain OpenCV call for comparison.
 
     .venv/bin/python bench/parallel_matching.py [--size 640x480] [--frames 10] [--markdown]

@@ -51,7 +51,7 @@ class OpenCVMatcher:
         return MatchResult(fixed_point_to_float(raw, self._min_disparity))
 
 
-def create_bm(params: StereoParams) -> Matcher:
+def opencv_bm(params: StereoParams, speckle_size: int) -> cv2.StereoBM:
     bm = cv2.StereoBM.create(params.disparity_range, params.correlation_window_size)
     bm.setPreFilterType(cv2.StereoBM_PREFILTER_XSOBEL)
     bm.setPreFilterSize(params.prefilter_size)
@@ -59,10 +59,10 @@ def create_bm(params: StereoParams) -> Matcher:
     bm.setMinDisparity(params.min_disparity)
     bm.setTextureThreshold(params.texture_threshold)
     bm.setUniquenessRatio(round(params.uniqueness_ratio))
-    bm.setSpeckleWindowSize(params.speckle_size)
+    bm.setSpeckleWindowSize(speckle_size)
     bm.setSpeckleRange(params.speckle_range)
     bm.setDisp12MaxDiff(params.disp12_max_diff if params.disp12_max_diff > 0 else -1)  # 0: off, as stereo_image_proc
-    return OpenCVMatcher(bm, params.min_disparity)
+    return bm
 
 
 def sgbm_disp12_max_diff(params: StereoParams) -> int:
@@ -89,50 +89,67 @@ def opencv_sgbm(params: StereoParams, speckle_size: int) -> cv2.StereoSGBM:
 
 
 ONE_CORE_SGBM_MODES = (0, 1)  # SGBM and HH; SGBM_3WAY and HH4 spread one image over OpenCV's threads
-STRIP_OVERLAP = 48  # rows each half reaches into the other
+STRIP_OVERLAP = 48  # rows each half reaches into the other (semi-global paths need them to agree again)
 
 
 @functools.cache
 def _lower_halves() -> ThreadPoolExecutor:
-    """The threads that match lower halves, shared by every StripSGBM (one per frame matched at once)."""
-    return ThreadPoolExecutor(max_workers=4, thread_name_prefix="sgbm_lower_half")
+    """The threads that match lower halves, shared by every Halves matcher (one per frame matched at once)."""
+    return ThreadPoolExecutor(max_workers=4, thread_name_prefix="lower_half")
 
 
-class StripSGBM:
-    """OpenCV SGBM in its SGBM and HH modes, on two cores.
+class Halves:
+    """An OpenCV matcher on two cores: the upper and the lower half of the image at once (the lower one
+    on a helper thread), each reaching `overlap` rows into the other, joined, and speckles removed over
+    the whole image as OpenCV does inside `compute`.
 
-    Those two modes aggregate on the calling thread only. This matches the upper and the lower half
-    of the image at once (the lower one on a helper thread), each reaching STRIP_OVERLAP rows into the
-    other, joins them, and removes speckles over the whole image as OpenCV does inside `compute`.
-    Semi-global paths restarted at a half's edge agree with the whole-image ones again within the
-    overlap: the joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
-    (test/test_strip_sgbm.py), 1.3-1.8x sooner on two cores (bench/parallel_matching.py). Images too
-    low to split are matched whole.
+    - SGBM and HH aggregate on the calling thread only. Semi-global paths restarted at a half's edge
+      agree with the whole-image ones again within STRIP_OVERLAP rows.
+    - BM spreads an image over OpenCV's threads in stripes of at least ~200 rows, so a VGA frame is 3
+      stripes on 2 cores; its halves need only the window and the prefilter's reach. The lower half
+      starts on an even row: BM's last valid row depends on the parity of the image's height.
+    The joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
+    (test/test_halves.py). Images too low to split, and frames given one thread (core/threads.py: a
+    fleet worker's share, or a node matching two frames at once), are matched whole.
     """
 
-    def __init__(self, params: StereoParams) -> None:
-        self._upper, self._lower = opencv_sgbm(params, 0), opencv_sgbm(params, 0)  # speckles: after joining
+    def __init__(
+        self,
+        params: StereoParams,
+        build: Callable[[StereoParams, int], cv2.StereoMatcher],
+        overlap: int,
+        speckle_range: int,
+    ) -> None:
+        self._upper, self._lower = build(params, 0), build(params, 0)  # speckles: after joining
+        self._overlap, self._speckle_range = overlap, speckle_range  # the range in OpenCV's unit for this matcher
         self._params = params
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
         height = left.shape[0]
-        if height < 4 * STRIP_OVERLAP:
+        if height < 4 * self._overlap or cv2.getNumThreads() < 2:
             raw = self._upper.compute(left, right)
         else:
-            middle, overlap = height // 2, STRIP_OVERLAP
-            lower = _lower_halves().submit(self._lower.compute, left[middle - overlap :], right[middle - overlap :])
+            middle = height // 2
+            start = (middle - self._overlap) & ~1
+            lower = _lower_halves().submit(self._lower.compute, left[start:], right[start:])
             raw = np.empty(left.shape[:2], np.int16)
-            raw[:middle] = self._upper.compute(left[: middle + overlap], right[: middle + overlap])[:middle]
-            raw[middle:] = lower.result()[overlap:]
+            raw[:middle] = self._upper.compute(left[: 2 * middle - start], right[: 2 * middle - start])[:middle]
+            raw[middle:] = lower.result()[middle - start :]
         p = self._params
         if p.speckle_size > 0:
-            cv2.filterSpeckles(raw, (p.min_disparity - 1) * 16, p.speckle_size, 16 * p.speckle_range)
+            cv2.filterSpeckles(raw, (p.min_disparity - 1) * 16, p.speckle_size, self._speckle_range)
         return MatchResult(fixed_point_to_float(raw, p.min_disparity))
+
+
+def create_bm(params: StereoParams) -> Matcher:
+    """StereoBM takes its speckle range in 1/16 px (StereoSGBM in pixels): as stereo_image_proc passes it."""
+    reach = params.correlation_window_size // 2 + params.prefilter_size // 2 + 1
+    return Halves(params, opencv_bm, reach, params.speckle_range)
 
 
 def create_sgbm(params: StereoParams) -> Matcher:
     if params.sgbm_mode in ONE_CORE_SGBM_MODES:
-        return StripSGBM(params)
+        return Halves(params, opencv_sgbm, STRIP_OVERLAP, 16 * params.speckle_range)
     return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
 
 

@@ -53,7 +53,7 @@ class TaskResult:
 
 def matcher_cores(params: StereoParams) -> int:
     """Cores one frame keeps busy: OpenCV SGBM in its one-core modes is matched as two halves at once
-    (matching.StripSGBM); every other matcher here runs one frame on one core."""
+    (matching.Halves); every other matcher here runs one frame on one core."""
     return 2 if params.matcher == "sgbm" and params.sgbm_mode in ONE_CORE_SGBM_MODES else 1
 
 

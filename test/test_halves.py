@@ -1,4 +1,4 @@
-"""OpenCV SGBM's one-core modes matched as two overlapping halves at once must give exactly what
+"""OpenCV's BM and SGBM's one-core modes matched as two overlapping halves at once must give exactly what
 OpenCV gives for the whole image: stereo_image_proc users switching to us expect its disparity."""
 
 from __future__ import annotations
@@ -9,9 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from stereo_depth.core import matching
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.matching import STRIP_OVERLAP, OpenCVMatcher, StripSGBM, create_matcher, opencv_sgbm
+from stereo_depth.core.matching import STRIP_OVERLAP, Halves, OpenCVMatcher, create_matcher, opencv_bm, opencv_sgbm
 from stereo_depth.core.params import make_params
+from stereo_depth.core.threads import use_threads
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
 
@@ -39,8 +41,21 @@ PAIRS = grey_pairs()
 def test_halves_equal_opencv_on_the_whole_image(mode: int, name: str, left: np.ndarray, right: np.ndarray) -> None:
     params = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": mode})
     matcher = create_matcher(params)
-    assert isinstance(matcher, StripSGBM) and left.shape[0] >= 4 * STRIP_OVERLAP  # the halves are used
+    assert isinstance(matcher, Halves) and left.shape[0] >= 4 * STRIP_OVERLAP  # the halves are used
     whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    halves = matcher.compute(left, right).disparity
+    assert np.isfinite(halves).mean() > 0.3
+    np.testing.assert_array_equal(halves, whole.disparity)
+
+
+@pytest.mark.parametrize("rows", [0, 1], ids=["as_is", "one_row_less"])  # both parities of the image height
+@pytest.mark.parametrize(("name", "left", "right"), PAIRS, ids=[p[0] for p in PAIRS])
+def test_bm_halves_equal_opencv_on_the_whole_image(rows: int, name: str, left: np.ndarray, right: np.ndarray) -> None:
+    left, right = left[: left.shape[0] - rows], right[: right.shape[0] - rows]
+    params = make_params("stereo_image_proc", {"disp12_max_diff": 1})  # BM, its speckle filter and LR check on
+    matcher = create_matcher(params)
+    assert isinstance(matcher, Halves) and params.speckle_size > 0
+    whole = OpenCVMatcher(opencv_bm(params, params.speckle_size), params.min_disparity).compute(left, right)
     halves = matcher.compute(left, right).disparity
     assert np.isfinite(halves).mean() > 0.3
     np.testing.assert_array_equal(halves, whole.disparity)
@@ -54,3 +69,17 @@ def test_multi_core_modes_and_small_images_use_opencv_directly() -> None:
     small_l, small_r = left[: 3 * STRIP_OVERLAP], right[: 3 * STRIP_OVERLAP]
     whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(small_l, small_r)
     np.testing.assert_array_equal(create_matcher(params).compute(small_l, small_r).disparity, whole.disparity)
+
+
+def test_a_frame_given_one_thread_is_matched_whole_on_that_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fleet worker's share of one core, or a node matching two frames at once: no helper thread."""
+    _, left, right = PAIRS[0]
+    params = make_params("stereo_image_proc")
+    whole = OpenCVMatcher(opencv_bm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    monkeypatch.setattr(matching, "_lower_halves", lambda: pytest.fail("a helper thread was used"))
+    before = use_threads(0)
+    try:
+        assert use_threads(1) == 1
+        np.testing.assert_array_equal(create_matcher(params).compute(left, right).disparity, whole.disparity)
+    finally:
+        use_threads(before)
