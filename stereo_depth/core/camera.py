@@ -248,7 +248,13 @@ class StereoCamera:
 
     def needs_rectification(self, side: str) -> bool:
         """False only when remapping would be the identity (no distortion, R = I, K = P[:3,:3])."""
-        return needs_rectification(self.left if side == "left" else self.right)
+        return self._sides_to_rectify[side]
+
+    @cached_property
+    def _sides_to_rectify(self) -> dict[str, bool]:
+        """`needs_rectification` per side, decided once per calibration (np.allclose costs 30 us a call,
+        on every frame's critical path otherwise)."""
+        return {"left": needs_rectification(self.left), "right": needs_rectification(self.right)}
 
     def rectification_maps(self, side: str) -> tuple[np.ndarray, np.ndarray]:
         """Fixed-point maps for cv2.remap (CV_16SC2), built on first use and cached."""
