@@ -107,7 +107,7 @@ class OutputOptions:
         "with temporal_persistence of the last temporal_history frames (no ghost points)",
     )
     temporal_alpha: float = option(
-        0.4, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
+        0.2, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
     )
     temporal_delta: float = option(
         2.0,

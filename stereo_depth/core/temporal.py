@@ -1,21 +1,22 @@
 """Temporal filter: per-pixel disparity over the last few frames, so a match seen once never becomes a point.
 
 Navigation stacks mark what a depth frame shows; a pixel that is wrong in one frame is a ghost obstacle.
-For each pixel the filter keeps its disparity in the last `history` frames (HOLE where invalid) and,
-per frame, looks at two candidates:
+For each pixel the filter keeps its disparity in the last `history` frames (1/16 px, HOLE where
+invalid). The values of the CANDIDATE_FRAMES (3) newest frames are its candidates; the remembered frames
+within `delta` px of one support it, the other valid ones conflict with it. A candidate passes when at
+least `persistence` frames support it (RealSense's "valid in k of the last n": a wrong match seen once
+has no support) and no more conflict than support (a pixel that flips between two values is not
+output); of those that pass, the one with the most support is output (confidence-weighted when the
+matcher gives one, census_sgm), the newer on a tie; none passes: invalid. Three candidates, not the
+newest value alone: in textureless parts the noise spreads wider than `delta`, and the newest value at
+the edge of the spread would blank a pixel that a value of the frames before still describes. Older
+values never stand in, so an object that left leaves a trail of at most 2 frames, and a hole of up to
+2 frames keeps the last value.
 
-- a: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a hole of up to 2 frames keeps the
-  last value; older values never stand in, so an object that left leaves a trail of at most 2 frames);
-- b: the previous frame's value, when a is this frame's.
-
-a is output when at least `persistence` of the remembered frames agree with it within `delta` px
-(RealSense's "valid in k of the last n": a wrong match seen once has no support) and no more disagree
-than agree (a pixel that flips between two values is not output); else b, when it differs from a and
-passes the same test (a new value seen once, an outlier or the first frame of a change, shows the
-previous one); else nothing. The value is an exponential average of the agreeing frames only (`alpha`,
-the newest frame's weight; older frames' weights fall by 1 - alpha per frame), each also weighted by the
-matcher's confidence when it gives one (census_sgm): a value that differs by more than `delta` restarts
-the average.
+The value is an exponential average of the supporting frames (`alpha`, the newest frame's weight;
+older frames' weights fall by 1 - alpha per frame; each also weighted by the matcher's confidence),
+taken as the candidate plus its supporters' average offset, so equal values average to themselves
+exactly, and rounded to 1/16 px, the step the history holds and DisparityImage announces (delta_d).
 
 The output is a function of the last frames alone (no recursion over the whole stream), so a bag cut into
 shards gives bit-identical results once each shard is fed `lead_in_frames` frames before its first.
@@ -47,7 +48,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 class TemporalSettings:
     """The filter's parameters (the `temporal_*` output options)."""
 
-    alpha: float = 0.4
+    alpha: float = 0.2
     delta: float = 2.0
     persistence: int = 4
     history: int = MAX_HISTORY
@@ -85,8 +86,8 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        self._values: np.ndarray | None = None  # (history, pixels) float32; HOLE: invalid or before a restart
-        self._weights: np.ndarray | None = None  # (history, pixels) float32 confidence; None: matcher gives none
+        self._values: np.ndarray | None = None  # (history, pixels) 1/16 px; HOLE: invalid or before a restart
+        self._weights: np.ndarray | None = None  # (history, pixels) confidence 0..255; None: matcher gives none
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=MAX_HISTORY)  # the last stamps, across restarts
@@ -115,8 +116,8 @@ class TemporalFilter:
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((history, pixels), HOLE, np.float32)
-            self._weights = None if confidence is None else np.zeros((history, pixels), np.float32)
+            self._values = np.full((history, pixels), HOLE, np.int16)
+            self._weights = None if confidence is None else np.zeros((history, pixels), np.uint8)
             self._head, self._frames = -1, 0
         previous, self._head = self._head, (self._head + 1) % history
         both, changed = kernels["store"](
@@ -144,6 +145,7 @@ class TemporalFilter:
             np.float32(settings.delta),
             np.float32(settings.persistence),
             out,
+            _threads(),
         )
         return out.reshape(disparity.shape)
 
@@ -161,13 +163,18 @@ class TemporalFilter:
 
 
 # ----------------------------------------------------------------------------------------------- kernels
-# Invalid pixels are HOLE in the history, not NaN, so "agrees with" is one branch-free comparison. No
-# fastmath: its contractions (FMA) differ between a vector loop and its scalar remainder, so a pixel's
-# result would depend on where its row starts in memory, and live and offline would differ in the last bit.
+# The history holds 1/16 px fixed point (int16, HOLE where invalid) and the confidence as 0..255 (uint8):
+# a quarter of float32's bytes, which is what the filter's time goes on (it streams the whole history
+# once per frame). No fastmath: its contractions (FMA) differ between a vector loop and its scalar
+# remainder, so a pixel's result would depend on where its row starts in memory, and live and offline
+# would differ in the last bit.
 
-HOLE = np.float32(-1e9)
-BRIDGED_FRAMES = 2  # a pixel invalid in this many latest frames still shows its last value (then: a trail)
-BLOCK = 512  # pixels per block: the block's accumulators stay in L1 while the frames stream past
+SUBPIXELS = 16  # the history's and the output's step, 1/16 px: DisparityImage's delta_d, OpenCV's fixed point
+HOLE = np.int16(-32768)
+CONFIDENCE_LEVELS = 255
+CANDIDATE_FRAMES = 3  # the values of this many newest frames are the candidates (then: a trail)
+prange = range  # numba.prange once the kernels are compiled (_kernels)
+BLOCK = 256  # pixels per block: the block's accumulators stay in L1 while the frames stream past
 
 
 def _store(
@@ -178,19 +185,21 @@ def _store(
     previous: np.ndarray | None,
     delta: np.float32,
 ) -> tuple[int, int]:
-    """This frame into its history rows (NaN -> HOLE; the confidence, when there is one); returns (pixels valid in this
-    and the previous frame, those of them that moved by more than `delta`) for the motion test."""
+    """This frame into its history rows (1/16 px, NaN -> HOLE; the confidence, when there is one);
+    returns (pixels valid in this and the previous frame, those of them that moved by more than
+    `delta` px) for the motion test."""
     both = 0
     changed = 0
+    limit = delta * SUBPIXELS
     for p in range(disparity.size):
         value = disparity[p]
-        valid = value == value
-        values[p] = value if valid else HOLE
+        fixed = np.int16(np.rint(value * SUBPIXELS)) if value == value else HOLE
+        values[p] = fixed
         if weights is not None and confidence is not None:
-            weights[p] = confidence[p]
-        if previous is not None and valid and previous[p] != HOLE:
+            weights[p] = np.uint8(np.rint(min(max(confidence[p], 0.0), 1.0) * CONFIDENCE_LEVELS))
+        if previous is not None and fixed != HOLE and previous[p] != HOLE:
             both += 1
-            changed += abs(value - previous[p]) > delta
+            changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
 
 
@@ -202,65 +211,129 @@ def _filter_pixels(
     delta: np.float32,
     persistence: np.float32,
     out: np.ndarray,
+    parts: int,
 ) -> None:
-    """Per pixel: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a), the previous frame's
-    when a is this frame's (b), and over the history how many frames agree with each (support) or hold
-    another valid value (conflict). Output: a's weighted average when a is supported (support >=
-    persistence, support >= conflict), else b's when b is supported and differs from a (a new value seen
-    once: an outlier, or the first frame of a change), else invalid.
+    """Per pixel, each of the values of the CANDIDATE_FRAMES newest frames is a candidate; over the
+    history, the frames within `delta` of it support it, the other valid frames conflict with it. A
+    candidate passes with support >= persistence and support >= conflict; of those that pass, the one
+    with the most support (confidence-weighted when the matcher gives one) is output, the newer on a
+    tie: its weighted average (candidate + the average offset of its supporters, so equal values
+    average to themselves exactly), rounded to 1/16 px. None passes: invalid.
 
     `slots`: the history's rows, newest first, as many as there are frames since the restart. Block by
     block, frame by frame, without branches, so that the inner loops vectorise; numba compiles the
-    `weights is None` case (no confidence) without the weights."""
+    `weights is None` case (no confidence) without the weights. The pixels are cut into `parts` runs of
+    whole blocks, one per thread; each pixel's result is the same whatever the count."""
     frames = slots.size
-    cand_a = np.empty(BLOCK, np.float32)
-    cand_b = np.empty(BLOCK, np.float32)
-    # a: support, conflict, weights, weighted values; b: support, conflict, weights, weighted values
-    acc = np.empty((8, BLOCK), np.float32)
+    candidates = min(CANDIDATE_FRAMES, frames)
+    blocks = -(-out.size // BLOCK)
+    for part in prange(parts):
+        _filter_blocks(
+            values,
+            weights,
+            slots,
+            alpha,
+            delta,
+            persistence,
+            out,
+            frames,
+            candidates,
+            part * blocks // parts * BLOCK,
+            min((part + 1) * blocks // parts * BLOCK, out.size),
+        )
+
+
+def _filter_blocks(
+    values: np.ndarray,
+    weights: np.ndarray | None,
+    slots: np.ndarray,
+    alpha: np.float32,
+    delta: np.float32,
+    persistence: np.float32,
+    out: np.ndarray,
+    frames: int,
+    candidates: int,
+    first: int,
+    last: int,
+) -> None:
+    """`_filter_pixels` on the pixels first..last (whole blocks), with scratch of its own."""
+    cand = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
+    # per candidate: support, confidence-weighted support, weight, weighted offset
+    support = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
+    trust = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
+    weight = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
+    offsets = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
+    valid = np.empty(BLOCK, np.float32)  # frames with a value
+    value = np.empty(BLOCK, np.float32)  # one frame's values, then its confidences
+    confidence = np.empty(BLOCK, np.float32)
+    best = np.empty(BLOCK, np.float32)  # the chosen candidate's trust, and its value
+    result = np.empty(BLOCK, np.float32)
     zero = np.float32(0.0)
     one = np.float32(1.0)
+    hole = np.float32(HOLE)
+    limit = delta * np.float32(SUBPIXELS)
+    step = np.float32(1.0 / SUBPIXELS)
     nan = np.float32(np.nan)
-    no_weights = np.ones(BLOCK, np.float32)
-    for start in range(0, out.size, BLOCK):
-        n = min(BLOCK, out.size - start)
+    for start in range(first, last, BLOCK):
+        n = min(BLOCK, last - start)
         stop = start + n
-        cand_a[:n] = HOLE
-        cand_b[:n] = HOLE
-        acc[:, :n] = zero
-        for age in range(min(BRIDGED_FRAMES + 1, frames)):
-            row = values[slots[age], start:stop]
+        for c in range(CANDIDATE_FRAMES):
+            row = values[slots[min(c, frames - 1)], start:stop]
             for i in range(n):
-                cand_a[i] = row[i] if cand_a[i] == HOLE else cand_a[i]
-        if frames > 1:  # b: the previous frame's value, when a is this frame's
-            newest, previous = values[slots[0], start:stop], values[slots[1], start:stop]
-            for i in range(n):
-                cand_b[i] = previous[i] if newest[i] != HOLE else HOLE
+                cand[c, i] = np.float32(row[i]) if c < candidates else hole
+                support[c, i] = trust[c, i] = weight[c, i] = offsets[c, i] = zero
+        valid[:n] = zero
         decay = alpha
         for age in range(frames):
             row = values[slots[age], start:stop]
-            row_weights = no_weights if weights is None else weights[slots[age], start:stop]
             for i in range(n):
-                value = row[i]
-                valid = one if value != HOLE else zero
-                in_a = one if abs(value - cand_a[i]) <= delta else zero  # HOLE never agrees with a value
-                in_b = one if abs(value - cand_b[i]) <= delta else zero
-                weight = decay * row_weights[i]
-                acc[0, i] += in_a
-                acc[1, i] += valid - in_a
-                acc[2, i] += weight * in_a
-                acc[3, i] += weight * in_a * value
-                acc[4, i] += in_b
-                acc[5, i] += valid - in_b
-                acc[6, i] += weight * in_b
-                acc[7, i] += weight * in_b * value
+                value[i] = np.float32(row[i])
+                valid[i] += one if value[i] != hole else zero
+            if weights is not None:
+                confidences = weights[slots[age], start:stop]
+                for i in range(n):
+                    confidence[i] = np.float32(confidences[i])
+            for c in range(candidates):  # HOLE agrees with HOLE only; a HOLE candidate never passes
+                cand_c, support_c, trust_c = cand[c], support[c], trust[c]
+                weight_c, offsets_c = weight[c], offsets[c]
+                if weights is None:
+                    for i in range(n):
+                        offset = value[i] - cand_c[i]
+                        agree = decay if abs(offset) <= limit else zero
+                        support_c[i] += one if abs(offset) <= limit else zero
+                        weight_c[i] += agree
+                        offsets_c[i] += agree * offset
+                else:
+                    for i in range(n):
+                        offset = value[i] - cand_c[i]
+                        agree = one if abs(offset) <= limit else zero
+                        support_c[i] += agree
+                        trust_c[i] += agree * confidence[i]
+                        weight_c[i] += agree * decay * confidence[i]
+                        offsets_c[i] += agree * decay * confidence[i] * offset
             decay *= one - alpha
-        for i in range(n):  # both candidates' results, then a choice: no branch to mispredict
-            a, b = cand_a[i], cand_b[i]
-            use_a = (a != HOLE) & (acc[0, i] >= persistence) & (acc[1, i] <= acc[0, i])
-            use_b = (b != HOLE) & (abs(a - b) > delta) & (acc[4, i] >= persistence) & (acc[5, i] <= acc[4, i])
-            mean_a = acc[3, i] / acc[2, i] if acc[2, i] > zero else a
-            mean_b = acc[7, i] / acc[6, i] if acc[6, i] > zero else b
-            out[start + i] = mean_a if use_a else (mean_b if use_b else nan)
+        if weights is None:
+            trust[:, :n] = support[:, :n]
+        best[:n] = -one
+        result[:n] = nan
+        for c in range(candidates):  # each candidate's test, then a choice: no branch to mispredict
+            cand_c, support_c, trust_c = cand[c], support[c], trust[c]
+            weight_c, offsets_c = weight[c], offsets[c]
+            for i in range(n):
+                passes = (cand_c[i] != hole) & (support_c[i] >= persistence) & (valid[i] - support_c[i] <= support_c[i])
+                mean = cand_c[i] + (offsets_c[i] / weight_c[i] if weight_c[i] > zero else zero)
+                better = passes & (trust_c[i] > best[i])
+                best[i] = trust_c[i] if better else best[i]
+                result[i] = mean if better else result[i]
+        for i in range(n):
+            out[start + i] = np.rint(result[i]) * step  # NaN stays NaN
+
+
+def _threads() -> int:
+    """The numba threads given to work on this thread (core/threads.py `use_threads`: cpu_threads)."""
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 @functools.cache
@@ -268,7 +341,10 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
     import numba
 
+    module = globals()  # the parallel kernel calls the compiled block kernel, and numba's prange
+    module["prange"] = numba.prange
+    module["_filter_blocks"] = numba.njit(cache=True, nogil=True)(_filter_blocks)
     return {
         "store": numba.njit(cache=True, nogil=True)(_store),
-        "filter": numba.njit(cache=True, nogil=True)(_filter_pixels),
+        "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
     }
