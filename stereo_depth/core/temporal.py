@@ -191,7 +191,7 @@ def _store(
     both = 0
     changed = 0
     limit = delta * SUBPIXELS
-    for p in range(disparity.size):
+    for p in prange(disparity.size):
         value = disparity[p]
         fixed = np.int16(np.rint(value * SUBPIXELS)) if value == value else HOLE
         values[p] = fixed
@@ -264,8 +264,9 @@ def _filter_blocks(
     weight = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
     offsets = np.empty((CANDIDATE_FRAMES, BLOCK), np.float32)
     valid = np.empty(BLOCK, np.float32)  # frames with a value
-    value = np.empty(BLOCK, np.float32)  # one frame's values, then its confidences
-    confidence = np.empty(BLOCK, np.float32)
+    value = np.empty(BLOCK, np.float32)  # one frame's values
+    confidence = np.empty(BLOCK, np.float32)  # one frame's confidences, and times its decay
+    weighted = np.empty(BLOCK, np.float32)
     best = np.empty(BLOCK, np.float32)  # the chosen candidate's trust, and its value
     result = np.empty(BLOCK, np.float32)
     zero = np.float32(0.0)
@@ -293,6 +294,7 @@ def _filter_blocks(
                 confidences = weights[slots[age], start:stop]
                 for i in range(n):
                     confidence[i] = np.float32(confidences[i])
+                    weighted[i] = decay * confidence[i]
             for c in range(candidates):  # HOLE agrees with HOLE only; a HOLE candidate never passes
                 cand_c, support_c, trust_c = cand[c], support[c], trust[c]
                 weight_c, offsets_c = weight[c], offsets[c]
@@ -309,8 +311,8 @@ def _filter_blocks(
                         agree = one if abs(offset) <= limit else zero
                         support_c[i] += agree
                         trust_c[i] += agree * confidence[i]
-                        weight_c[i] += agree * decay * confidence[i]
-                        offsets_c[i] += agree * decay * confidence[i] * offset
+                        weight_c[i] += agree * weighted[i]
+                        offsets_c[i] += agree * weighted[i] * offset
             decay *= one - alpha
         if weights is None:
             trust[:, :n] = support[:, :n]
@@ -345,6 +347,6 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["prange"] = numba.prange
     module["_filter_blocks"] = numba.njit(cache=True, nogil=True)(_filter_blocks)
     return {
-        "store": numba.njit(cache=True, nogil=True)(_store),
+        "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
         "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
     }
