@@ -16,7 +16,7 @@ estimated, density, and the filter's ms per frame (median wall time, with the th
 it: cpu_threads 0, this process's cores; the euroc rows are 752x480, more than VGA, and a VGA row
 times 640x480 crops of them). Metrics skip the first `--warm-up` frames.
 
-.venv/bin/python bench/temporal.py [--scenes DIR ...] [--frames 30] [--set temporal_delta=1.0 ...]
+.venv/bin/python bench/temporal.py [--scenes DIR ...] [--frames 30] [--seed 1] [--set temporal_delta=1.0 ...]
 """
 
 from __future__ import annotations
@@ -232,6 +232,7 @@ def main() -> None:
     parser.add_argument("--profiles", nargs="+", default=["default", "quality"])
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--warm-up", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=1, help="the static sequences' noise (a second seed: the spread)")
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="temporal_* options")
     args = parse_bench_arguments(parser)
     values = dict(item.split("=", 1) for item in args.set)
@@ -251,7 +252,9 @@ def main() -> None:
             rows = []
             for chosen in (None, settings):
                 pipeline = StereoPipeline(params)
-                outs, gts, ms = run(pipeline, static_sequence(scene, args.frames, 1), chosen, None, args.warm_up)
+                outs, gts, ms = run(
+                    pipeline, static_sequence(scene, args.frames, args.seed), chosen, None, args.warm_up
+                )
                 rows.append(metrics(outs, gts, ms))
             report(f"static {scene.name}", profile, rows[0], rows[1], args.markdown)
             summary.setdefault(profile, []).append((rows[0], rows[1]))
