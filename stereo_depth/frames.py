@@ -387,7 +387,8 @@ def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedM
     """The depth of points2_clearing (NaN elsewhere): pixels matched beyond max_depth or at the smallest
     disparity searched (as far as the matcher sees, or farther: their depth may be infinite), each at
     its depth clamped to clearing_max_depth. Such pixels never reach depth or points2 when beyond
-    max_depth; the mask and min_depth still hold them back. Call before `limit_depth`."""
+    max_depth; the mask and min_depth still hold them back, and so does glare (`near_saturation`). Call
+    before `limit_depth`."""
     depth = geometry.depth
     with np.errstate(invalid="ignore"):
         far = depth > np.float32(options.max_depth) if options.max_depth > 0 else np.zeros(depth.shape, bool)
@@ -395,11 +396,22 @@ def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedM
             far |= geometry.at_min_disparity
         if options.min_depth > 0:
             far &= ~(depth < np.float32(options.min_depth))
+    far &= ~near_saturation(geometry.image)
     if options.mask_image:
         far &= masks.get(options.mask_image, geometry.raw_camera, depth.shape)
     clearing = np.full(depth.shape, np.nan, np.float32)
     clearing[far] = np.fmin(depth[far], np.float32(options.clearing_max_depth))  # fmin: infinite (NaN) -> the limit
     return clearing
+
+
+def near_saturation(image: np.ndarray) -> np.ndarray:
+    """Pixels within one pixel of a saturated one (any channel at the type's maximum) in the rectified
+    left image. Glare is white without texture, so a matcher's disparity there is arbitrary: SGBM puts
+    2,700-3,600 pixels of each bundled EuRoC frame (a room) at the smallest disparity, more than half of
+    them in or beside glare. A clearing ray from one would clear real obstacles along it, so none is cast."""
+    top = np.iinfo(image.dtype).max
+    saturated = (image >= top) if image.ndim == 2 else (image >= top).any(axis=2)
+    return cv2.dilate(saturated.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
 def limit_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> None:

@@ -107,7 +107,7 @@ class OutputOptions:
         "with temporal_persistence of the last temporal_history frames (no ghost points)",
     )
     temporal_alpha: float = option(
-        0.4, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
+        0.2, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
     )
     temporal_delta: float = option(
         2.0,
@@ -284,7 +284,7 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
-# the temporal filter on the disparity (stereo_node)
+# the temporal filter on the disparity (stereo_node, disparity_node)
 TEMPORAL_OPTIONS = tuple(f.name for f in dataclasses.fields(OutputOptions) if f.name.startswith("temporal_"))
 # what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)
 DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")

@@ -40,6 +40,7 @@ OUTPUTS = {
     "depth/compressedDepth": CompressedImage,
     "points2": PointCloud2,
     "points2_clearing": PointCloud2,
+    "left/image_rect": Image,
 }
 _stamps = itertools.count(1_900_000_000 * 10**9, 250_000_000)
 
@@ -158,6 +159,12 @@ def clearing_pixels(cloud: Any, info: Any, shape: tuple[int, int]) -> tuple[np.n
     return np.rint(v).astype(int) * shape[1] + np.rint(u).astype(int), xyz[:, 2]
 
 
+def glare(left_rect: Any) -> np.ndarray:
+    """Pixels within one pixel of a saturated one in the rectified left image: white, no texture."""
+    saturated = (image_to_array(left_rect) == 255).astype(np.uint8)
+    return (cv2.dilate(saturated, np.ones((3, 3), np.uint8)) > 0).ravel()
+
+
 def test_pixels_beyond_max_depth_clear_out_to_the_clamp_and_never_mark(
     ros: RosHarness, nav: dict[str, Any], euroc: Pair
 ) -> None:
@@ -170,12 +177,26 @@ def test_pixels_beyond_max_depth_clear_out_to_the_clamp_and_never_mark(
     assert beyond.sum() > 1000 and (full.ravel() > 7.0).sum() > 100  # both rules bite on this scene
     message = got["disparity"]
     smallest = (disparity_from_msg(message) < message.min_disparity + 1).ravel()  # SGBM: d = 0 in glare
-    expected = np.flatnonzero(beyond | smallest)
+    expected = np.flatnonzero((beyond | smallest) & ~glare(got["left/image_rect"]))
     np.testing.assert_array_equal(pixels, expected)  # one point per such pixel, in pixel order
     np.testing.assert_array_equal(z.astype(np.float32), np.fmin(full.ravel()[expected], np.float32(7.0)))
     marked = cloud_to_arrays(got["points2"])[0][:, :, 2].ravel()
     assert not np.isfinite(marked[beyond]).any()  # never in points2
     assert not np.isfinite(image_to_array(got["depth"]).ravel()[beyond]).any()
+
+
+def test_glare_casts_no_clearing_ray(ros: RosHarness, nav: dict[str, Any], euroc: Pair) -> None:
+    """SGBM matches the window glare of the EuRoC room below 1 px (as if beyond 50 m): a clearing ray
+    from there would clear whatever stands in front of it."""
+    got = send(ros, nav, euroc, clearing_max_depth=100.0)
+    message = got["disparity"]
+    smallest = (disparity_from_msg(message) < message.min_disparity + 1).ravel()
+    in_glare = smallest & glare(got["left/image_rect"])
+    assert in_glare.sum() > 1000  # the glare this frame holds, matched at the smallest disparity
+    shape = image_to_array(got["depth"]).shape
+    pixels, _ = clearing_pixels(got["points2_clearing"], got["depth/camera_info"], shape)
+    assert not np.isin(np.flatnonzero(in_glare), pixels).any()
+    assert np.isin(np.flatnonzero(smallest & ~glare(got["left/image_rect"])), pixels).all()  # the rest still clear
 
 
 def test_pixels_at_the_smallest_disparity_clear_even_without_max_depth(
@@ -186,7 +207,9 @@ def test_pixels_at_the_smallest_disparity_clear_even_without_max_depth(
     message = got["disparity"]
     d = disparity_from_msg(message)
     pixels, z = clearing_pixels(got["points2_clearing"], got["depth/camera_info"], depth.shape)
-    smallest = np.flatnonzero(d < message.min_disparity + 1)  # NaN (not matched): never
+    smallest = np.flatnonzero(
+        (d < message.min_disparity + 1).ravel() & ~glare(got["left/image_rect"])
+    )  # NaN (not matched): never
     assert smallest.size > 500  # the farther half of the room saturates at 16 px
     np.testing.assert_array_equal(pixels, smallest)
     np.testing.assert_array_equal(z.astype(np.float32), depth.ravel()[smallest])  # as far as the matcher sees
@@ -211,7 +234,7 @@ def test_compressed_depth_decodes_to_the_depth_image(
 
 def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -> None:
     out = tmp_path / "nav"
-    outputs = ["depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing"]
+    outputs = ["depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing", "left/image_rect"]
     settings = ["depth_encoding=16UC1", "max_depth=5", "clearing_max_depth=7", "compressed_depth_max_depth=20"]
     args = ["process", str(BAG), str(out), "--outputs", *outputs, *(a for s in settings for a in ("--set", s))]
     assert main(args) == 0
@@ -230,8 +253,9 @@ def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -
         assert_decodes_to_depth(got["depth/compressedDepth"][index], got["depth"][index], depth_max=20.0)
         full = image_to_array(full_msg).astype(np.float64) / 1000.0
         pixels, z = clearing_pixels(got["points2_clearing"][index], got["depth/camera_info"][index], full.shape)
-        beyond = np.flatnonzero(full > 5.0)
-        assert beyond.size > 1000
+        assert (full > 5.0).sum() > 1000
+        beyond = np.flatnonzero((full > 5.0).ravel() & ~glare(got["left/image_rect"][index]))  # glare: no ray
+        assert beyond.size > 300
         assert np.isin(beyond, pixels).all()
         at = np.searchsorted(pixels, beyond)
         np.testing.assert_allclose(z[at], np.minimum(full.ravel()[beyond], 7.0), atol=5e-4)  # depth: mm here

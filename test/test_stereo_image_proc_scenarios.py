@@ -6,6 +6,7 @@ which only P is set (K = 0, D and R empty), no baseline, and for point_cloud_nod
 image has no encoding, read by one node with colour (32-byte points) and one without (16-byte points).
 They only check that something arrives; these tests also check what: the disparity the core computes,
 clouds whose depth is f * t / d, and for a zero baseline the disparity without depth and one warning.
+Ours adds the temporal filter to disparity_node: frame after frame, what `process` and stereo_node give.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,9 +27,11 @@ from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
+from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.frames import disparity_message
+from stereo_depth.frames import StereoFrame, disparity_message, filter_over_time, match_frame
 from stereo_depth.messages import array_to_image, camera_info_to_msg, cloud_to_arrays, disparity_from_msg, make_header
+from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 from conftest import SCENES
@@ -251,6 +255,57 @@ def test_point_cloud_node_without_baseline_warns_once_and_publishes_no_cloud(
         log = nodes[name].output()
         assert log.count(NO_BASELINE) == 1, log
         assert "set the baseline parameter" in log
+
+
+def noisy_frames(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The scene's pair with fresh sensor noise each frame (Gaussian, 2 grey levels)."""
+    rng = np.random.default_rng(5)
+
+    def noisy(image: np.ndarray) -> np.ndarray:
+        return np.clip(np.rint(image + rng.normal(0.0, 2.0, image.shape)), 0, 255).astype(np.uint8)
+
+    return [(noisy(SCENE.left), noisy(SCENE.right)) for _ in range(count)]
+
+
+def test_disparity_node_filters_over_time_as_process_and_stereo_node_do(
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """`temporal_filter` on disparity_node: 12 noisy frames of a rectified pair give, bit for bit, the
+    disparity of `filter_over_time` after `match_frame`, the functions stereo_node and `process` run."""
+    frames = noisy_frames(12)
+    stamps = [1_720_000_000 * 10**9 + k * 100_000_000 for k in range(len(frames))]
+    params, options = make_params("stereo_image_proc"), OutputOptions(temporal_filter=True)
+    camera, pipeline, temporal = StereoCamera(LEFT_INFO, RIGHT_INFO), StereoPipeline(params), TemporalFilter()
+    expected, unfiltered = [], []
+    for stamp, (left, right) in zip(stamps, frames, strict=True):
+        header = make_header(RCLPY_TYPES, stamp, FRAME)
+        frame = StereoFrame(stamp, header, left, right, camera, rectified=True)
+        result = match_frame(pipeline, frame)
+        unfiltered.append(result.disparity.copy())
+        filter_over_time(temporal, frame, result, options)
+        expected.append(disparity_from_msg(disparity_message(RCLPY_TYPES, header, result.disparity, camera, params)))
+    assert all(np.isnan(d).all() for d in expected[: options.temporal_persistence - 1])  # not yet seen enough
+    assert not np.array_equal(expected[-1], unfiltered[-1], equal_nan=True)  # the filter changed something
+
+    namespace = "/sip_temporal"
+    args = ["-p", "profile:=stereo_image_proc", "-p", "temporal_filter:=true"]
+    node = NodeProcess("disparity_node", namespace, ros_env, tmp_path, args)
+    with ros.running([node]):
+        (collector,) = outputs_matched(ros, DisparityImage, f"{namespace}/disparity")
+        topics = {f"{namespace}/{side}/image_rect": Image for side in ("left", "right")}
+        topics.update({f"{namespace}/{side}/camera_info": CameraInfo for side in ("left", "right")})
+        inputs = Inputs(ros, topics)
+        for stamp, (left, right), want in zip(stamps, frames, expected, strict=True):
+            inputs.publish(
+                {
+                    f"{namespace}/left/image_rect": bgr8(stamp, left),
+                    f"{namespace}/left/camera_info": camera_info(stamp, p_only(LEFT_INFO)),
+                    f"{namespace}/right/image_rect": bgr8(stamp, right),
+                    f"{namespace}/right/camera_info": camera_info(stamp, p_only(RIGHT_INFO)),
+                }
+            )
+            np.testing.assert_array_equal(disparity_from_msg(collector.wait_stamp(stamp)), want)  # one at a time
+        ros.node.destroy_subscription(collector.subscription)
 
 
 def test_nodes_survived(nodes: dict[str, NodeProcess]) -> None:

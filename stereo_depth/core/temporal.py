@@ -1,21 +1,22 @@
 """Temporal filter: per-pixel disparity over the last few frames, so a match seen once never becomes a point.
 
 Navigation stacks mark what a depth frame shows; a pixel that is wrong in one frame is a ghost obstacle.
-For each pixel the filter keeps its disparity in the last `history` frames (HOLE where invalid) and,
-per frame, looks at two candidates:
+For each pixel the filter keeps its disparity in the last `history` frames (1/16 px, HOLE where
+invalid). The values of the three newest frames are its candidates; the remembered frames
+within `delta` px of one support it, the other valid ones conflict with it. A candidate passes when at
+least `persistence` frames support it (RealSense's "valid in k of the last n": a wrong match seen once
+has no support) and no more conflict than support (a pixel that flips between two values is not
+output); of those that pass, the one with the most support is output (confidence-weighted when the
+matcher gives one, census_sgm), the newer on a tie; none passes: invalid. Three candidates, not the
+newest value alone: in textureless parts the noise spreads wider than `delta`, and the newest value at
+the edge of the spread would blank a pixel that a value of the frames before still describes. Older
+values never stand in, so an object that left leaves a trail of at most 2 frames, and a hole of up to
+2 frames keeps the last value.
 
-- a: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a hole of up to 2 frames keeps the
-  last value; older values never stand in, so an object that left leaves a trail of at most 2 frames);
-- b: the previous frame's value, when a is this frame's.
-
-a is output when at least `persistence` of the remembered frames agree with it within `delta` px
-(RealSense's "valid in k of the last n": a wrong match seen once has no support) and no more disagree
-than agree (a pixel that flips between two values is not output); else b, when it differs from a and
-passes the same test (a new value seen once, an outlier or the first frame of a change, shows the
-previous one); else nothing. The value is an exponential average of the agreeing frames only (`alpha`,
-the newest frame's weight; older frames' weights fall by 1 - alpha per frame), each also weighted by the
-matcher's confidence when it gives one (census_sgm): a value that differs by more than `delta` restarts
-the average.
+The value is an exponential average of the supporting frames (`alpha`, the newest frame's weight;
+older frames' weights fall by 1 - alpha per frame; each also weighted by the matcher's confidence),
+taken as the candidate plus its supporters' average offset, so equal values average to themselves
+exactly, and rounded to 1/16 px, the step the history holds and DisparityImage announces (delta_d).
 
 The output is a function of the last frames alone (no recursion over the whole stream), so a bag cut into
 shards gives bit-identical results once each shard is fed `lead_in_frames` frames before its first.
@@ -47,7 +48,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 class TemporalSettings:
     """The filter's parameters (the `temporal_*` output options)."""
 
-    alpha: float = 0.4
+    alpha: float = 0.2
     delta: float = 2.0
     persistence: int = 4
     history: int = MAX_HISTORY
@@ -85,8 +86,10 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        self._values: np.ndarray | None = None  # (history, pixels) float32; HOLE: invalid or before a restart
-        self._weights: np.ndarray | None = None  # (history, pixels) float32 confidence; None: matcher gives none
+        # (MAX_HISTORY, pixels): rows 0..history-1 a ring of frames, the rest HOLE (the kernel reads 8 rows)
+        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, before a restart, or beyond history
+        self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
+        self._history = 0
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=MAX_HISTORY)  # the last stamps, across restarts
@@ -111,13 +114,14 @@ class TemporalFilter:
         pixels, history = disparity.size, settings.history
         if (
             self._values is None
-            or self._values.shape != (history, pixels)
+            or self._values.shape[1] != pixels
+            or history != self._history
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((history, pixels), HOLE, np.float32)
-            self._weights = None if confidence is None else np.zeros((history, pixels), np.float32)
-            self._head, self._frames = -1, 0
+            self._values = np.full((MAX_HISTORY, pixels), HOLE, np.int16)
+            self._weights = None if confidence is None else np.zeros((MAX_HISTORY, pixels), np.uint8)
+            self._head, self._frames, self._history = -1, 0, history
         previous, self._head = self._head, (self._head + 1) % history
         both, changed = kernels["store"](
             disparity.reshape(-1),
@@ -129,21 +133,23 @@ class TemporalFilter:
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
         if self._frames == 0 or moved or self._stamp_breaks(stamp_ns):
-            self._values[np.arange(history) != self._head] = HOLE
+            self._values[np.arange(MAX_HISTORY) != self._head] = HOLE
             self._frames = 0
         self._stamps.append(stamp_ns)
         self._calibration = calibration
         self._frames += 1
-        slots = (self._head - np.arange(min(self._frames, history))) % history
+        ages = np.arange(MAX_HISTORY)
+        slots = np.where(ages < history, (self._head - ages) % history, ages)  # newest first; then HOLE rows
         out = np.empty(pixels, np.float32)
         kernels["filter"](
             self._values,
             self._weights,
             slots,
-            np.float32(settings.alpha),
+            _decays(settings.alpha),
             np.float32(settings.delta),
             np.float32(settings.persistence),
             out,
+            _threads(),
         )
         return out.reshape(disparity.shape)
 
@@ -161,13 +167,17 @@ class TemporalFilter:
 
 
 # ----------------------------------------------------------------------------------------------- kernels
-# Invalid pixels are HOLE in the history, not NaN, so "agrees with" is one branch-free comparison. No
-# fastmath: its contractions (FMA) differ between a vector loop and its scalar remainder, so a pixel's
-# result would depend on where its row starts in memory, and live and offline would differ in the last bit.
+# The history holds 1/16 px fixed point (int16, HOLE where invalid) and the confidence as 0..255 (uint8):
+# a quarter of float32's bytes to stream through per frame. Always MAX_HISTORY rows, those beyond
+# `history` HOLE, so the kernel's frame loop is written out eight times and each pixel's sums stay in
+# registers (a loop over the frames inside the pixel loop would keep it from vectorising). No fastmath:
+# its contractions (FMA) differ between a vector loop and its scalar remainder, so a pixel's result would
+# depend on where its row starts in memory, and live and offline would differ in the last bit.
 
-HOLE = np.float32(-1e9)
-BRIDGED_FRAMES = 2  # a pixel invalid in this many latest frames still shows its last value (then: a trail)
-BLOCK = 512  # pixels per block: the block's accumulators stay in L1 while the frames stream past
+SUBPIXELS = 16  # the history's and the output's step, 1/16 px: DisparityImage's delta_d, OpenCV's fixed point
+HOLE = np.int16(-32768)
+CONFIDENCE_LEVELS = 255
+prange = range  # numba.prange once the kernels are compiled (_kernels)
 
 
 def _store(
@@ -178,89 +188,245 @@ def _store(
     previous: np.ndarray | None,
     delta: np.float32,
 ) -> tuple[int, int]:
-    """This frame into its history rows (NaN -> HOLE; the confidence, when there is one); returns (pixels valid in this
-    and the previous frame, those of them that moved by more than `delta`) for the motion test."""
+    """This frame into its history rows (1/16 px, NaN -> HOLE; the confidence, when there is one);
+    returns (pixels valid in this and the previous frame, those of them that moved by more than
+    `delta` px) for the motion test."""
     both = 0
     changed = 0
-    for p in range(disparity.size):
+    limit = delta * SUBPIXELS
+    for p in prange(disparity.size):
         value = disparity[p]
-        valid = value == value
-        values[p] = value if valid else HOLE
+        fixed = np.int16(np.rint(value * SUBPIXELS)) if value == value else HOLE
+        values[p] = fixed
         if weights is not None and confidence is not None:
-            weights[p] = confidence[p]
-        if previous is not None and valid and previous[p] != HOLE:
+            weights[p] = np.uint8(np.rint(min(max(confidence[p], 0.0), 1.0) * CONFIDENCE_LEVELS))
+        if previous is not None and fixed != HOLE and previous[p] != HOLE:
             both += 1
-            changed += abs(value - previous[p]) > delta
+            changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
+
+
+def _decays(alpha: float) -> np.ndarray:
+    """Each age's weight in the average, newest first: alpha, then falling by 1 - alpha a frame."""
+    decays = np.empty(MAX_HISTORY, np.float32)
+    decay, keep = np.float32(alpha), np.float32(1.0) - np.float32(alpha)
+    for age in range(MAX_HISTORY):
+        decays[age] = decay
+        decay *= keep
+    return decays
 
 
 def _filter_pixels(
     values: np.ndarray,
     weights: np.ndarray | None,
     slots: np.ndarray,
-    alpha: np.float32,
+    decays: np.ndarray,
     delta: np.float32,
     persistence: np.float32,
     out: np.ndarray,
+    parts: int,
 ) -> None:
-    """Per pixel: the newest valid value of the last BRIDGED_FRAMES + 1 frames (a), the previous frame's
-    when a is this frame's (b), and over the history how many frames agree with each (support) or hold
-    another valid value (conflict). Output: a's weighted average when a is supported (support >=
-    persistence, support >= conflict), else b's when b is supported and differs from a (a new value seen
-    once: an outlier, or the first frame of a change), else invalid.
+    """Per pixel, each of the values of the three newest frames is a candidate; over the history, the
+    frames within `delta` of it support it, the other valid frames conflict with it. A candidate passes
+    with support >= persistence and support >= conflict; of those that pass, the one with the most
+    support (confidence-weighted when the matcher gives one) is output, the newer on a tie: its weighted
+    average (candidate + the average offset of its supporters, so equal values average to themselves
+    exactly), rounded to 1/16 px. None passes: invalid.
 
-    `slots`: the history's rows, newest first, as many as there are frames since the restart. Block by
-    block, frame by frame, without branches, so that the inner loops vectorise; numba compiles the
-    `weights is None` case (no confidence) without the weights."""
-    frames = slots.size
-    cand_a = np.empty(BLOCK, np.float32)
-    cand_b = np.empty(BLOCK, np.float32)
-    # a: support, conflict, weights, weighted values; b: support, conflict, weights, weighted values
-    acc = np.empty((8, BLOCK), np.float32)
+    `slots`: the MAX_HISTORY rows, newest first (rows of frames before a restart or beyond the history
+    are HOLE: they support nothing). The pixels are cut into `parts` runs, one per thread; each pixel's
+    result is the same whatever the count."""
+    for part in prange(parts):
+        _filter_range(
+            values,
+            weights,
+            slots,
+            decays,
+            delta,
+            persistence,
+            out,
+            part * out.size // parts,
+            (part + 1) * out.size // parts,
+        )
+
+
+def _filter_range(
+    values: np.ndarray,
+    weights: np.ndarray | None,
+    slots: np.ndarray,
+    decays: np.ndarray,
+    delta: np.float32,
+    persistence: np.float32,
+    out: np.ndarray,
+    first: int,
+    last: int,
+) -> None:
+    """`_filter_pixels` on the pixels first..last-1. The eight frames are written out one by one
+    (`_add_frame`, inlined) on row views indexed from 0, so that each pixel's sums stay in registers and
+    the pixel loop vectorises; numba compiles the `weights is None` case (no confidence) without the
+    weights."""
+    one = np.float32(1.0)
+    limit = delta * np.float32(SUBPIXELS)
+    v0, v1, v2, v3 = (
+        values[slots[0], first:last],
+        values[slots[1], first:last],
+        values[slots[2], first:last],
+        values[slots[3], first:last],
+    )
+    v4, v5, v6, v7 = (
+        values[slots[4], first:last],
+        values[slots[5], first:last],
+        values[slots[6], first:last],
+        values[slots[7], first:last],
+    )
+    d0, d1, d2, d3, d4, d5, d6, d7 = (
+        decays[0],
+        decays[1],
+        decays[2],
+        decays[3],
+        decays[4],
+        decays[5],
+        decays[6],
+        decays[7],
+    )
+    result = out[first:last]
+    if weights is None:
+        for i in range(last - first):
+            a, b, c = np.float32(v0[i]), np.float32(v1[i]), np.float32(v2[i])
+            sums = _add_frame(_NO_SUMS, v0[i], one, d0, a, b, c, limit)
+            sums = _add_frame(sums, v1[i], one, d1, a, b, c, limit)
+            sums = _add_frame(sums, v2[i], one, d2, a, b, c, limit)
+            sums = _add_frame(sums, v3[i], one, d3, a, b, c, limit)
+            sums = _add_frame(sums, v4[i], one, d4, a, b, c, limit)
+            sums = _add_frame(sums, v5[i], one, d5, a, b, c, limit)
+            sums = _add_frame(sums, v6[i], one, d6, a, b, c, limit)
+            sums = _add_frame(sums, v7[i], one, d7, a, b, c, limit)
+            result[i] = _chosen(sums, a, b, c, persistence)
+    else:
+        c0, c1, c2, c3 = (
+            weights[slots[0], first:last],
+            weights[slots[1], first:last],
+            weights[slots[2], first:last],
+            weights[slots[3], first:last],
+        )
+        c4, c5, c6, c7 = (
+            weights[slots[4], first:last],
+            weights[slots[5], first:last],
+            weights[slots[6], first:last],
+            weights[slots[7], first:last],
+        )
+        for i in range(last - first):
+            a, b, c = np.float32(v0[i]), np.float32(v1[i]), np.float32(v2[i])
+            w = np.float32(c0[i])
+            sums = _add_frame(_NO_SUMS, v0[i], w, d0 * w, a, b, c, limit)
+            w = np.float32(c1[i])
+            sums = _add_frame(sums, v1[i], w, d1 * w, a, b, c, limit)
+            w = np.float32(c2[i])
+            sums = _add_frame(sums, v2[i], w, d2 * w, a, b, c, limit)
+            w = np.float32(c3[i])
+            sums = _add_frame(sums, v3[i], w, d3 * w, a, b, c, limit)
+            w = np.float32(c4[i])
+            sums = _add_frame(sums, v4[i], w, d4 * w, a, b, c, limit)
+            w = np.float32(c5[i])
+            sums = _add_frame(sums, v5[i], w, d5 * w, a, b, c, limit)
+            w = np.float32(c6[i])
+            sums = _add_frame(sums, v6[i], w, d6 * w, a, b, c, limit)
+            w = np.float32(c7[i])
+            sums = _add_frame(sums, v7[i], w, d7 * w, a, b, c, limit)
+            result[i] = _chosen(sums, a, b, c, persistence)
+
+
+_NO_SUMS = (np.float32(0.0),) * 13  # per candidate a, b, c: support, trust, weight, offset; then valid frames
+
+
+def _chosen(
+    sums: tuple[np.float32, ...], a: np.float32, b: np.float32, c: np.float32, persistence: np.float32
+) -> np.float32:
+    """Each candidate's test, then a choice, newest first, without a branch to mispredict: the chosen
+    candidate's average rounded to 1/16 px, or NaN."""
+    zero = np.float32(0.0)
+    hole = np.float32(HOLE)
+    support_a, trust_a, weight_a, offset_a, support_b, trust_b, weight_b, offset_b = sums[:8]
+    support_c, trust_c, weight_c, offset_c, valid = sums[8:]
+    mean_a = a + (offset_a / weight_a if weight_a > zero else zero)
+    mean_b = b + (offset_b / weight_b if weight_b > zero else zero)
+    mean_c = c + (offset_c / weight_c if weight_c > zero else zero)
+    pass_a = (a != hole) & (support_a >= persistence) & (valid - support_a <= support_a)
+    best = trust_a if pass_a else np.float32(-1.0)
+    mean = mean_a if pass_a else np.float32(np.nan)
+    pass_b = (b != hole) & (support_b >= persistence) & (valid - support_b <= support_b) & (trust_b > best)
+    best = trust_b if pass_b else best
+    mean = mean_b if pass_b else mean
+    pass_c = (c != hole) & (support_c >= persistence) & (valid - support_c <= support_c) & (trust_c > best)
+    mean = mean_c if pass_c else mean
+    return np.float32(np.rint(mean) * np.float32(1.0 / SUBPIXELS))  # NaN stays NaN
+
+
+def _add_frame(
+    sums: tuple[np.float32, ...],
+    value: np.int16,
+    confidence: np.float32,
+    weight: np.float32,
+    a: np.float32,
+    b: np.float32,
+    c: np.float32,
+    limit: np.float32,
+) -> tuple[np.float32, ...]:
+    """One frame's value into a pixel's sums: per candidate a, b, c its support (frames within `limit`,
+    1/16 px), confidence-weighted support, weight and weighted offset; then the valid frames. A HOLE
+    agrees with a HOLE only, and a HOLE candidate never passes."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
-    nan = np.float32(np.nan)
-    no_weights = np.ones(BLOCK, np.float32)
-    for start in range(0, out.size, BLOCK):
-        n = min(BLOCK, out.size - start)
-        stop = start + n
-        cand_a[:n] = HOLE
-        cand_b[:n] = HOLE
-        acc[:, :n] = zero
-        for age in range(min(BRIDGED_FRAMES + 1, frames)):
-            row = values[slots[age], start:stop]
-            for i in range(n):
-                cand_a[i] = row[i] if cand_a[i] == HOLE else cand_a[i]
-        if frames > 1:  # b: the previous frame's value, when a is this frame's
-            newest, previous = values[slots[0], start:stop], values[slots[1], start:stop]
-            for i in range(n):
-                cand_b[i] = previous[i] if newest[i] != HOLE else HOLE
-        decay = alpha
-        for age in range(frames):
-            row = values[slots[age], start:stop]
-            row_weights = no_weights if weights is None else weights[slots[age], start:stop]
-            for i in range(n):
-                value = row[i]
-                valid = one if value != HOLE else zero
-                in_a = one if abs(value - cand_a[i]) <= delta else zero  # HOLE never agrees with a value
-                in_b = one if abs(value - cand_b[i]) <= delta else zero
-                weight = decay * row_weights[i]
-                acc[0, i] += in_a
-                acc[1, i] += valid - in_a
-                acc[2, i] += weight * in_a
-                acc[3, i] += weight * in_a * value
-                acc[4, i] += in_b
-                acc[5, i] += valid - in_b
-                acc[6, i] += weight * in_b
-                acc[7, i] += weight * in_b * value
-            decay *= one - alpha
-        for i in range(n):  # both candidates' results, then a choice: no branch to mispredict
-            a, b = cand_a[i], cand_b[i]
-            use_a = (a != HOLE) & (acc[0, i] >= persistence) & (acc[1, i] <= acc[0, i])
-            use_b = (b != HOLE) & (abs(a - b) > delta) & (acc[4, i] >= persistence) & (acc[5, i] <= acc[4, i])
-            mean_a = acc[3, i] / acc[2, i] if acc[2, i] > zero else a
-            mean_b = acc[7, i] / acc[6, i] if acc[6, i] > zero else b
-            out[start + i] = mean_a if use_a else (mean_b if use_b else nan)
+    support_a, trust_a, weight_a, offset_a, support_b, trust_b, weight_b, offset_b = sums[:8]
+    support_c, trust_c, weight_c, offset_c, valid = sums[8:]
+    v = np.float32(value)
+    valid += one if value != HOLE else zero
+    d = v - a
+    agree = one if abs(d) <= limit else zero
+    support_a, trust_a, weight_a, offset_a = (
+        support_a + agree,
+        trust_a + agree * confidence,
+        weight_a + agree * weight,
+        offset_a + agree * weight * d,
+    )
+    d = v - b
+    agree = one if abs(d) <= limit else zero
+    support_b, trust_b, weight_b, offset_b = (
+        support_b + agree,
+        trust_b + agree * confidence,
+        weight_b + agree * weight,
+        offset_b + agree * weight * d,
+    )
+    d = v - c
+    agree = one if abs(d) <= limit else zero
+    support_c, trust_c, weight_c, offset_c = (
+        support_c + agree,
+        trust_c + agree * confidence,
+        weight_c + agree * weight,
+        offset_c + agree * weight * d,
+    )
+    return (
+        support_a,
+        trust_a,
+        weight_a,
+        offset_a,
+        support_b,
+        trust_b,
+        weight_b,
+        offset_b,
+        support_c,
+        trust_c,
+        weight_c,
+        offset_c,
+        valid,
+    )
+
+
+def _threads() -> int:
+    """The numba threads given to work on this thread (core/threads.py `use_threads`: cpu_threads)."""
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 @functools.cache
@@ -268,7 +434,12 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
     import numba
 
+    module = globals()  # the parallel kernel calls the compiled ones below it, and numba's prange
+    module["prange"] = numba.prange
+    module["_add_frame"] = numba.njit(cache=True, inline="always")(_add_frame)
+    module["_chosen"] = numba.njit(cache=True, inline="always")(_chosen)
+    module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
     return {
-        "store": numba.njit(cache=True, nogil=True)(_store),
-        "filter": numba.njit(cache=True, nogil=True)(_filter_pixels),
+        "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
+        "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
     }

@@ -1,4 +1,5 @@
-"""disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract)."""
+"""disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract),
+with stereo_node's temporal filter (`temporal_filter`, the same `filter_over_time`)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from typing import Any
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.frames import image_outputs
-from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, Settings
+from stereo_depth.core.temporal import TemporalFilter, compile_kernels
+from stereo_depth.frames import filter_over_time, image_outputs
+from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
@@ -23,7 +25,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
-    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, "cpu_threads")
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, *TEMPORAL_OPTIONS, "cpu_threads")
     WITH_STEREO = True
 
     def __init__(self) -> None:
@@ -31,6 +33,12 @@ class DisparityNode(StereoIONode):
 
     def open_outputs(self) -> None:
         self._disparity = self.output(DisparityImage, "disparity")
+        self._temporal = TemporalFilter()  # frames come one at a time, in the order they were matched
+
+    def start_workers(self) -> None:
+        super().start_workers()
+        if self.parameters.settings.output.temporal_filter:
+            compile_kernels()  # now, not on the first frame
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert settings.stereo is not None
@@ -39,6 +47,7 @@ class DisparityNode(StereoIONode):
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         result = self.match(frame)
+        filter_over_time(self._temporal, frame, result, settings.output)
         start = time.perf_counter()
         for message in image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",)).values():
             self._disparity.publish(message)
