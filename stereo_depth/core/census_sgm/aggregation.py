@@ -1,4 +1,4 @@
-"""Hamming costs, semi-global aggregation along 4 or 8 paths, and the winner selection it feeds.
+"""Hamming costs, semi-global aggregation along 4, 5 or 8 paths, and the winner selection it feeds.
 
 Selection runs row by row inside the aggregation, as soon as the row's sums are complete, so the
 two share this file (numba's cache sees only a function's own file; kernels that call each other
@@ -19,6 +19,7 @@ prange = range  # replaced by numba.prange before any kernel is compiled (regist
 
 HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
 PATH_COST_MAX = 254  # largest matching cost + 2 x P2 the uint8 path costs hold (see ``cost_shift``)
+STRIP_WARMUP = 48  # rows the lower strip runs before its first matched row (see ``_strips_select``)
 
 
 @_kernel(inline=True)
@@ -120,6 +121,30 @@ def _add_paths(
             acc[x, k] = np.uint16(acc[x, k] + a + b)
 
 
+@_kernel(inline=True)
+def _store_paths(
+    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes the four paths' sum
+    x: int,
+    line: np.ndarray,  # the left-to-right path's L_r(p) is line[h0 + 1 : h0 + nd + 1]
+    h0: int,
+    state: np.ndarray,  # the vertical / diagonal paths' L_r(p) are state[o0 + j * step + 1 ...], j < 3
+    o0: int,
+    step: int,
+) -> None:
+    """S(p) = the four paths a row's left-to-right pass carries: one write of the uint16 row per pixel."""
+    for k in range(acc.shape[1]):
+        a = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
+        b = np.uint16(state[np.uint64(o0 + step + 1 + k)]) + np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
+        acc[x, k] = np.uint16(a + b)
+
+
+@_kernel(inline=True)
+def _add_line(acc: np.ndarray, x: int, line: np.ndarray, h0: int) -> None:
+    """S(p) += the right-to-left path's L_r(p) (line[h0 + 1 : h0 + nd + 1])."""
+    for k in range(acc.shape[1]):
+        acc[x, k] = np.uint16(acc[x, k] + np.uint16(line[np.uint64(h0 + 1 + k)]))
+
+
 @_kernel()
 def _edge_p2(a: np.uint8, b: np.uint8, p1: int, p2: int, gamma: float) -> np.uint16:
     """P2 divided by the intensity step between neighbours: depth jumps are cheap across edges."""
@@ -219,6 +244,91 @@ def _sweep(
                 cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, sb], q1, b_p2)
             _add_paths(s_row, x, keep, line, h_out, state, (cur0 + s) * n2, span * n2, ndirs)
         if finish:
+            _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
+
+
+@_kernel()
+def _strip(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    shift: int,
+    img: np.ndarray,
+    p2_of: np.ndarray,
+    p1: int,
+    rows: tuple[int, int, int],
+    select: tuple[int, float, int, float, float],
+    disp: np.ndarray,
+    conf: np.ndarray,
+) -> None:
+    """Rows start..end - 1 of ``rows`` (start, first, end), top-down along five paths; those from ``first`` matched.
+
+    Per row: a left-to-right pass computes the costs (``_hamming_pixel`` from ``census``, else
+    reads ``vol[y]``) and runs the left-to-right path and the three from the row above ((y-1, x),
+    (y-1, x+1), (y-1, x-1)), storing their sum S; a right-to-left pass adds the fifth path; the
+    row is then matched. Everything a row touches (its costs, S, the path rows: ~0.7 MB at
+    640 x 128) stays in L2, and nothing of image size is written but the output.
+
+    ``bufs[y & 1, j]`` holds row y's L_r for vertical / diagonal direction j, slot x + 1 for
+    column x, plus a padding slot per side that stays zero: the zero predecessor that starts a
+    path at the border, as the all-zero previous row does at ``start`` (L_r = C exactly there,
+    so path starts need no code of their own). ``mins`` holds their minima.
+    """
+    start, first, end = rows
+    w = img.shape[1]
+    nd = vol.shape[2]
+    n2 = nd + 2
+    span = w + 2  # buffers per direction and row
+    bufs = np.zeros((2, 3, span, n2), np.uint8)  # (row parity, direction, slot, d)
+    bufs[:, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
+    bufs[:, :, :, nd + 1] = 255 - p1
+    mins = np.zeros((2, 3, span), np.uint8)
+    state = bufs.reshape(bufs.size)
+    line = np.full(3 * n2, np.uint8(255 - p1), np.uint8)  # horizontal paths: zero start, then a ping-pong pair
+    line[1 : nd + 1] = 0
+    row_cost = np.empty((w, nd), np.uint8)
+    s_row = np.empty((w, nd), np.uint16)
+    right_cost = np.empty(w, np.uint16)
+    right_k = np.empty(w, np.uint16)
+    left_k = np.empty(w, np.int32)
+    ratio = np.empty(w, np.float32)
+    sub = np.empty(w, np.float32)
+    q1 = np.uint8(p1)
+    no_census = np.empty(0, np.uint64)
+    for y in range(start, end):
+        cost = row_cost if census is not None else vol[y]
+        cl_row, cr_row = (census[0][y], census[1][y]) if census is not None else (no_census, no_census)
+        cur_min, prev_min = mins[y & 1], mins[(y & 1) ^ 1]
+        cur0 = (y & 1) * 3 * span  # index of row y's first buffer; row y - 1's is prev0
+        prev0 = ((y & 1) ^ 1) * 3 * span
+        yp = max(y - 1, 0)  # row of the predecessors (any row at ``start``: prev is zero)
+        h_min = np.uint8(0)
+        for x in range(w):
+            s = x + 1
+            if census is not None:
+                _hamming_pixel(cl_row, cr_row, x, select[0], shift, cost)
+            c = np.int64(img[y, x])
+            h_p2 = p2_of[abs(c - np.int64(img[y, max(x - 1, 0)]))]
+            h_in = 0 if x == 0 else 2 - (x & 1)
+            h_out = (1 + (x & 1)) * n2
+            h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
+            v_p2 = p2_of[abs(c - np.int64(img[yp, x]))]
+            cur_min[0, s] = _path(cost, x, state, (prev0 + s) * n2, (cur0 + s) * n2, prev_min[0, s], q1, v_p2)
+            a_p2 = p2_of[abs(c - np.int64(img[yp, min(x + 1, w - 1)]))]
+            b_p2 = p2_of[abs(c - np.int64(img[yp, max(x - 1, 0)]))]
+            ia, oa = (prev0 + span + s + 1) * n2, (cur0 + span + s) * n2
+            cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, s + 1], q1, a_p2)
+            ib, ob = (prev0 + 2 * span + s - 1) * n2, (cur0 + 2 * span + s) * n2
+            cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, s - 1], q1, b_p2)
+            _store_paths(s_row, x, line, h_out, state, (cur0 + s) * n2, span * n2)
+        h_min = np.uint8(0)
+        for i in range(w):
+            x = w - 1 - i
+            h_p2 = p2_of[abs(np.int64(img[y, x]) - np.int64(img[y, min(x + 1, w - 1)]))]
+            h_in = 0 if i == 0 else 2 - (i & 1)
+            h_out = (1 + (i & 1)) * n2
+            h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
+            _add_line(s_row, x, line, h_out)
+        if y >= first:
             _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
 
 
@@ -347,6 +457,38 @@ def _aggregate_select(
             else:
                 y0, y1 = (mid - 1, -1) if finish else (h - 1, mid - 1)
             _sweep(vol, census, shift, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf)
+    return disp, conf
+
+
+@_kernel(parallel=True)
+def _strips_select(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    shift: int,
+    img: np.ndarray,
+    p1: int,
+    p2: int,
+    gamma: float,
+    select: tuple[int, float, int, float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """5-path SGM aggregation and matching in two row strips side by side: returns (disparity, confidence).
+
+    The five paths all come from above or from the side (``_strip``), so one top-down pass per
+    strip completes S row by row and matches each row while it is in cache: no cost or sum volume.
+    The lower strip starts ``STRIP_WARMUP`` rows above its first matched row, so its paths from
+    above carry that much context into it (SGM paths forget their start within a few dozen rows);
+    the split row gives both strips as many rows. Two strips whatever the thread count, so the
+    result does not depend on it; this stage uses two cores at most.
+    """
+    h, w = img.shape
+    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
+    disp = np.full((h, w), HOLE, np.float32)
+    conf = np.zeros((h, w), np.float32)
+    warmup = min(STRIP_WARMUP, h // 2)
+    split = (h + warmup) // 2
+    for t in prange(2):
+        rows = (0, 0, split) if t == 0 else (split - warmup, split, h)
+        _strip(vol, census, shift, img, p2_of, p1, rows, select, disp, conf)
     return disp, conf
 
 
