@@ -370,9 +370,9 @@ def _select_row(
             v = s_row[x, k]
             least = min(least, v)
             xr = mirror + np.uint64(k)
-            better = v < right_cost[xr]
-            right_k[xr] = np.uint16(k) if better else right_k[xr]
-            right_cost[xr] = min(right_cost[xr], v)
+            old_cost, old_k = right_cost[xr], right_k[xr]  # both loaded first: a select, not a branch
+            right_k[xr] = np.uint16(k) if v < old_cost else old_k
+            right_cost[xr] = min(old_cost, v)
         first = np.uint16(0xFFFF)
         for k in range(kmax):
             first = min(first, np.uint16(k) if s_row[x, k] == least else np.uint16(0xFFFF))
