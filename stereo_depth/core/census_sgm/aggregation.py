@@ -380,14 +380,15 @@ def _select_row(
         if kmax < nd and bk == kmax - 1:
             continue  # best at the image edge: the true match may lie left of the right image
         best = np.float32(s_row[x, bk])
-        # Best outside bk-1..bk+1 in one masked pass, in 16-bit arithmetic so it vectorises 16 wide
-        # (k - (bk - 1) wraps to a large number below bk - 1; the load must not be conditional).
+        lo = np.float32(s_row[x, max(bk - 1, 0)])  # the parabola's neighbours (used inside the row only)
+        hi = np.float32(s_row[x, min(bk + 1, kmax - 1)])
+        # Best outside bk-1..bk+1: those three are overwritten in S (read for the last time here), so
+        # the search is a plain minimum, 16 lanes a 256-bit vector with no per-disparity index.
+        for k in range(max(bk - 1, 0), min(bk + 2, kmax)):
+            s_row[x, k] = 0xFFFF
         rival = np.uint16(0xFFFF)
-        first_near = np.int16(bk - 1)
         for k in range(kmax):
-            v = s_row[x, k]
-            far = np.uint16(np.int16(k) - first_near) > np.uint16(2)
-            rival = min(rival, v if far else np.uint16(0xFFFF))
+            rival = min(rival, s_row[x, k])
         second = np.float32(rival)
         if second < 65535.0 and second * (np.float32(1.0) - uniqueness) < best:
             continue
@@ -395,8 +396,6 @@ def _select_row(
         ratio[x] = np.float32(1.0) if second >= 65535.0 else (second - best) / max(second, np.float32(1.0))
         sub[x] = 0.0
         if 0 < bk < kmax - 1:
-            lo = np.float32(s_row[x, bk - 1])
-            hi = np.float32(s_row[x, bk + 1])
             den = lo + hi - np.float32(2.0) * best
             if den > 0:
                 sub[x] = (lo - hi) / (np.float32(2.0) * den)
