@@ -353,7 +353,8 @@ def _select_row(
     best cost and disparity so far (``right_cost``, ``right_k``) are updated for every k in one
     branch-free uint16 pass (16 lanes a 256-bit vector), which also gives the left minimum;
     they are stored mirrored (xr at w - 1 - xr) so that pass runs forwards. Ties go to the
-    smallest disparity in both views (a strict < along increasing k).
+    smallest disparity in both views (a strict < along increasing k). ``s_row`` is spent afterwards:
+    the three sums around each winner are overwritten so the rival search is a plain minimum.
     """
     min_d, uniqueness, disp12, conf_gain, lr_penalty = select
     w, nd = s_row.shape
