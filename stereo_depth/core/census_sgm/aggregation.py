@@ -377,7 +377,7 @@ def _select_row(
         first = np.uint16(0xFFFF)
         for k in range(kmax):
             first = min(first, np.uint16(k) if s_row[x, k] == least else np.uint16(0xFFFF))
-        bk = np.int64(first)
+        bk = int(first)
         if kmax < nd and bk == kmax - 1:
             continue  # best at the image edge: the true match may lie left of the right image
         best = np.float32(s_row[x, bk])
