@@ -68,9 +68,9 @@ def census_sgm(
     < 0 disables the left-right check. ``census_size`` is (height, width), at most 63 bits.
     ``paths`` is 4 (horizontal + vertical) or 8, aggregated by two sweeps over the whole cost volume,
     or 5 (horizontal + the three from the row above), aggregated in one top-down pass per row strip
-    with nothing of volume size in memory (``_strips_select``): 1.5x sooner at AVX-512, 1.2x at AVX2, none
-    at 128-bit (bench/simd_match_ratio.py), bad-2 0.004 worse
-    over the 38 scenes. ``speckle_size`` 0 disables speckle removal.
+    with nothing of volume size in memory (``_strips_select``): 1.3-1.7x sooner at AVX-512, AVX2 and
+    128-bit alike (bench/simd_match_ratio.py), bad-1 0.010 and bad-2 0.004 worse over the 38 scenes.
+    ``speckle_size`` 0 disables speckle removal.
     Confidence is the cost margin (second - best) / second times ``conf_gain``, clipped to 1 and
     scaled by ``lr_penalty`` where the two views disagree by a pixel.
 
