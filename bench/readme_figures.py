@@ -48,6 +48,12 @@ SIMD_ENV = {
 }
 
 
+def simd_env(level: str) -> dict[str, str]:
+    """SIMD_ENV of that level, with a numba cache folder of its own (~/.cache/stereo_depth/numba_<level>)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stereo_depth" / f"numba_{level}"
+    return {**SIMD_ENV[level], "NUMBA_CACHE_DIR": str(cache)}
+
+
 @dataclass(frozen=True)
 class Run:
     """What each section needs: the command line's options and a scratch folder for the benches' reports."""
@@ -181,6 +187,8 @@ def performance(run: Run) -> bool:
     ok = run.bench("parallel_matching.py", quick=("--frames", "2")) and ok
     print("\nPer frame, the node's own work against the bare OpenCV calls (`bench/pipeline_stages.py`):\n")
     ok = run.bench("pipeline_stages.py", quick=("--repeat", "2")) and ok
+    print("\nThe census core against SGBM 3-way at three SIMD levels, interleaved (`bench/simd_match_ratio.py`):\n")
+    ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
     print("\nOffline, `stereo-depth process` against a bare loop (`bench/offline_process.py`):\n")
     arguments = ("--profiles", "stereo_image_proc", "--sizes", "640x480", "--frames", "100")
     return run.bench("offline_process.py", *arguments, quick=("--frames", "20", "--repeats", "1")) and ok
@@ -230,8 +238,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench-readme", help="pictures")
     args = parser.parse_args()
     if args.simd != "native":  # for every bench this run starts
-        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stereo_depth" / f"numba_{args.simd}"
-        os.environ.update(SIMD_ENV[args.simd], NUMBA_CACHE_DIR=str(cache))
+        os.environ.update(simd_env(args.simd))
     lock = hold_cpu_lock()
     args.out.mkdir(parents=True, exist_ok=True)
     failed = []

@@ -2,7 +2,7 @@
 
 Written for clarity, not speed (a path at a time, a pixel or a row at a time, integers wide enough
 that nothing wraps), so the kernels' tricks (8-bit path costs, sweeps that meet in the middle, the
-right view read off the left's aggregated row, mirrored scratch rows) can be checked against it.
+right view read off the left's aggregated row, mirrored scratch rows, row strips) can be checked against it.
 It follows ``census_sgm``'s documented rules (restated here, nothing imported from the code it checks):
 border-replicated 7x9 census, Hamming costs shifted as ``cost_shift`` documents, costs of right
 columns left of the image clamped to column 0, the SGM recurrence with P2 divided by the intensity
@@ -32,6 +32,16 @@ def cost_shift(census_bits: int, p1: float, p2: float) -> tuple[int, int, int]:
 
 # Predecessor offsets (dy, dx) of the 8 paths; the first 4 are the 4-path mode.
 PATHS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, 1), (-1, -1), (1, 1), (1, -1))
+# The 5-path mode: the paths from the side and from the row above, aggregated per row strip.
+TOP_DOWN_PATHS = ((0, -1), (0, 1), (-1, 0), (-1, 1), (-1, -1))
+STRIP_WARMUP = 48  # the 5-path mode's lower strip starts this many rows (at most half the image) above its first
+
+
+def strips(height: int) -> tuple[tuple[int, int, int], ...]:
+    """The 5-path mode's two strips, (first row aggregated, first row kept, end): as many rows each."""
+    warmup = min(STRIP_WARMUP, height // 2)
+    split = (height + warmup) // 2
+    return ((0, 0, split), (split - warmup, split, height))
 
 
 def census(image: np.ndarray, height: int = 7, width: int = 9) -> np.ndarray:
@@ -76,12 +86,14 @@ def _step(cost: np.ndarray, prev: np.ndarray, p1: int, p2: np.ndarray) -> np.nda
     return out
 
 
-def aggregate(cost: np.ndarray, image: np.ndarray, p1: int, p2_of: np.ndarray, paths: int) -> np.ndarray:
-    """S = sum over the paths of L_r."""
+def aggregate(
+    cost: np.ndarray, image: np.ndarray, p1: int, p2_of: np.ndarray, paths: tuple[tuple[int, int], ...]
+) -> np.ndarray:
+    """S = sum over the paths (predecessor offsets) of L_r."""
     h, w, _ = cost.shape
     grey = image.astype(np.int64)
     total = np.zeros_like(cost)
-    for dy, dx in PATHS[:paths]:
+    for dy, dx in paths:
         path = np.zeros_like(cost)
         if dy == 0:  # along rows: all rows at once, column by column
             for x in range(w) if dx < 0 else range(w - 1, -1, -1):
@@ -124,7 +136,13 @@ def match(
     """(disparity with NaN holes, confidence) before median, speckle and gap filtering."""
     shift, p1, p2 = cost_shift(62, P1, P2)
     cost = costs(left, right, min_disparity, num_disparities, shift)
-    total = aggregate(cost, left, p1, p2_table(p1, p2, p2_gamma), paths)
+    p2_of = p2_table(p1, p2, p2_gamma)
+    if paths == 5:  # each strip's paths start at its first row; rows before ``first`` only warm them up
+        total = np.zeros_like(cost)
+        for start, first, end in strips(left.shape[0]):
+            total[first:end] = aggregate(cost[start:end], left[start:end], p1, p2_of, TOP_DOWN_PATHS)[first - start :]
+    else:
+        total = aggregate(cost, left, p1, p2_of, PATHS[:paths])
     h, w, nd = total.shape
     disparity = np.full((h, w), np.nan, np.float32)
     confidence = np.zeros((h, w), np.float32)

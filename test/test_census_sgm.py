@@ -166,12 +166,13 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    ("paths", "min_disparity", "num_disparities"), [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70)]
+    ("paths", "min_disparity", "num_disparities"),
+    [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70), (5, 0, 24), (5, 3, 37)],
 )
 def test_core_computes_exactly_what_the_plain_reference_defines(
     paths: int, min_disparity: int, num_disparities: int
 ) -> None:
-    """The numba core (8-bit paths, meeting sweeps, right view off the left's row) against a plain numpy SGM.
+    """The numba core (8-bit paths, meeting sweeps or row strips, right view off the left's row) against plain numpy.
 
     A real Tsukuba crop (its left border included, so the clamped costs and the edge rule count),
     disparity counts that are no multiple of a vector width; the post-processing filters are off,

@@ -185,6 +185,7 @@ class CensusSGMMatcher:
             disp12_max_diff=p.disp12_max_diff,
             speckle_size=p.speckle_size,
             speckle_range=p.speckle_range,
+            paths=p.census_paths,
         )
         return MatchResult(disparity, confidence)
 

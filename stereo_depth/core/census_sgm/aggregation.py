@@ -1,4 +1,4 @@
-"""Hamming costs, semi-global aggregation along 4 or 8 paths, and the winner selection it feeds.
+"""Hamming costs, semi-global aggregation along 4, 5 or 8 paths, and the winner selection it feeds.
 
 Selection runs row by row inside the aggregation, as soon as the row's sums are complete, so the
 two share this file (numba's cache sees only a function's own file; kernels that call each other
@@ -19,6 +19,7 @@ prange = range  # replaced by numba.prange before any kernel is compiled (regist
 
 HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
 PATH_COST_MAX = 254  # largest matching cost + 2 x P2 the uint8 path costs hold (see ``cost_shift``)
+STRIP_WARMUP = 48  # rows the lower strip runs before its first matched row (see ``_strips_select``)
 
 
 @_kernel(inline=True)
@@ -118,6 +119,30 @@ def _add_paths(
             a = np.uint16(state[np.uint64(o0 + step + 1 + k)])
             b = np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
             acc[x, k] = np.uint16(acc[x, k] + a + b)
+
+
+@_kernel(inline=True)
+def _store_paths(
+    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes the four paths' sum
+    x: int,
+    line: np.ndarray,  # the left-to-right path's L_r(p) is line[h0 + 1 : h0 + nd + 1]
+    h0: int,
+    state: np.ndarray,  # the vertical / diagonal paths' L_r(p) are state[o0 + j * step + 1 ...], j < 3
+    o0: int,
+    step: int,
+) -> None:
+    """S(p) = the four paths a row's left-to-right pass carries: one write of the uint16 row per pixel."""
+    for k in range(acc.shape[1]):
+        a = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
+        b = np.uint16(state[np.uint64(o0 + step + 1 + k)]) + np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
+        acc[x, k] = np.uint16(a + b)
+
+
+@_kernel(inline=True)
+def _add_line(acc: np.ndarray, x: int, line: np.ndarray, h0: int) -> None:
+    """S(p) += the right-to-left path's L_r(p) (line[h0 + 1 : h0 + nd + 1])."""
+    for k in range(acc.shape[1]):
+        acc[x, k] = np.uint16(acc[x, k] + np.uint16(line[np.uint64(h0 + 1 + k)]))
 
 
 @_kernel()
@@ -223,6 +248,91 @@ def _sweep(
 
 
 @_kernel()
+def _strip(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    shift: int,
+    img: np.ndarray,
+    p2_of: np.ndarray,
+    p1: int,
+    rows: tuple[int, int, int],
+    select: tuple[int, float, int, float, float],
+    disp: np.ndarray,
+    conf: np.ndarray,
+) -> None:
+    """Rows start..end - 1 of ``rows`` (start, first, end), top-down along five paths; those from ``first`` matched.
+
+    Per row: a left-to-right pass computes the costs (``_hamming_pixel`` from ``census``, else
+    reads ``vol[y]``) and runs the left-to-right path and the three from the row above ((y-1, x),
+    (y-1, x+1), (y-1, x-1)), storing their sum S; a right-to-left pass adds the fifth path; the
+    row is then matched. Everything a row touches (its costs, S, the path rows: ~0.7 MB at
+    640 x 128) stays in L2, and nothing of image size is written but the output.
+
+    ``bufs[y & 1, j]`` holds row y's L_r for vertical / diagonal direction j, slot x + 1 for
+    column x, plus a padding slot per side that stays zero: the zero predecessor that starts a
+    path at the border, as the all-zero previous row does at ``start`` (L_r = C exactly there,
+    so path starts need no code of their own). ``mins`` holds their minima.
+    """
+    start, first, end = rows
+    w = img.shape[1]
+    nd = vol.shape[2]
+    n2 = nd + 2
+    span = w + 2  # buffers per direction and row
+    bufs = np.zeros((2, 3, span, n2), np.uint8)  # (row parity, direction, slot, d)
+    bufs[:, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
+    bufs[:, :, :, nd + 1] = 255 - p1
+    mins = np.zeros((2, 3, span), np.uint8)
+    state = bufs.reshape(bufs.size)
+    line = np.full(3 * n2, np.uint8(255 - p1), np.uint8)  # horizontal paths: zero start, then a ping-pong pair
+    line[1 : nd + 1] = 0
+    row_cost = np.empty((w, nd), np.uint8)
+    s_row = np.empty((w, nd), np.uint16)
+    right_cost = np.empty(w, np.uint16)
+    right_k = np.empty(w, np.uint16)
+    left_k = np.empty(w, np.int32)
+    ratio = np.empty(w, np.float32)
+    sub = np.empty(w, np.float32)
+    q1 = np.uint8(p1)
+    no_census = np.empty(0, np.uint64)
+    for y in range(start, end):
+        cost = row_cost if census is not None else vol[y]
+        cl_row, cr_row = (census[0][y], census[1][y]) if census is not None else (no_census, no_census)
+        cur_min, prev_min = mins[y & 1], mins[(y & 1) ^ 1]
+        cur0 = (y & 1) * 3 * span  # index of row y's first buffer; row y - 1's is prev0
+        prev0 = ((y & 1) ^ 1) * 3 * span
+        yp = max(y - 1, 0)  # row of the predecessors (any row at ``start``: prev is zero)
+        h_min = np.uint8(0)
+        for x in range(w):
+            s = x + 1
+            if census is not None:
+                _hamming_pixel(cl_row, cr_row, x, select[0], shift, cost)
+            c = np.int64(img[y, x])
+            h_p2 = p2_of[abs(c - np.int64(img[y, max(x - 1, 0)]))]
+            h_in = 0 if x == 0 else 2 - (x & 1)
+            h_out = (1 + (x & 1)) * n2
+            h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
+            v_p2 = p2_of[abs(c - np.int64(img[yp, x]))]
+            cur_min[0, s] = _path(cost, x, state, (prev0 + s) * n2, (cur0 + s) * n2, prev_min[0, s], q1, v_p2)
+            a_p2 = p2_of[abs(c - np.int64(img[yp, min(x + 1, w - 1)]))]
+            b_p2 = p2_of[abs(c - np.int64(img[yp, max(x - 1, 0)]))]
+            ia, oa = (prev0 + span + s + 1) * n2, (cur0 + span + s) * n2
+            cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, s + 1], q1, a_p2)
+            ib, ob = (prev0 + 2 * span + s - 1) * n2, (cur0 + 2 * span + s) * n2
+            cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, s - 1], q1, b_p2)
+            _store_paths(s_row, x, line, h_out, state, (cur0 + s) * n2, span * n2)
+        h_min = np.uint8(0)
+        for i in range(w):
+            x = w - 1 - i
+            h_p2 = p2_of[abs(np.int64(img[y, x]) - np.int64(img[y, min(x + 1, w - 1)]))]
+            h_in = 0 if i == 0 else 2 - (i & 1)
+            h_out = (1 + (i & 1)) * n2
+            h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
+            _add_line(s_row, x, line, h_out)
+        if y >= first:
+            _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
+
+
+@_kernel()
 def _select_row(
     s_row: np.ndarray,
     select: tuple[int, float, int, float, float],
@@ -243,7 +353,8 @@ def _select_row(
     best cost and disparity so far (``right_cost``, ``right_k``) are updated for every k in one
     branch-free uint16 pass (16 lanes a 256-bit vector), which also gives the left minimum;
     they are stored mirrored (xr at w - 1 - xr) so that pass runs forwards. Ties go to the
-    smallest disparity in both views (a strict < along increasing k).
+    smallest disparity in both views (a strict < along increasing k). ``s_row`` is spent afterwards:
+    the three sums around each winner are overwritten so the rival search is a plain minimum.
     """
     min_d, uniqueness, disp12, conf_gain, lr_penalty = select
     w, nd = s_row.shape
@@ -260,24 +371,25 @@ def _select_row(
             v = s_row[x, k]
             least = min(least, v)
             xr = mirror + np.uint64(k)
-            better = v < right_cost[xr]
-            right_k[xr] = np.uint16(k) if better else right_k[xr]
-            right_cost[xr] = min(right_cost[xr], v)
+            old_cost, old_k = right_cost[xr], right_k[xr]  # both loaded first: a select, not a branch
+            right_k[xr] = np.uint16(k) if v < old_cost else old_k
+            right_cost[xr] = min(old_cost, v)
         first = np.uint16(0xFFFF)
         for k in range(kmax):
             first = min(first, np.uint16(k) if s_row[x, k] == least else np.uint16(0xFFFF))
-        bk = np.int64(first)
+        bk = int(first)
         if kmax < nd and bk == kmax - 1:
             continue  # best at the image edge: the true match may lie left of the right image
         best = np.float32(s_row[x, bk])
-        # Best outside bk-1..bk+1 in one masked pass, in 16-bit arithmetic so it vectorises 16 wide
-        # (k - (bk - 1) wraps to a large number below bk - 1; the load must not be conditional).
+        lo = np.float32(s_row[x, max(bk - 1, 0)])  # the parabola's neighbours (used inside the row only)
+        hi = np.float32(s_row[x, min(bk + 1, kmax - 1)])
+        # Best outside bk-1..bk+1: those three are overwritten in S (read for the last time here), so
+        # the search is a plain minimum, 16 lanes a 256-bit vector with no per-disparity index.
+        for k in range(max(bk - 1, 0), min(bk + 2, kmax)):
+            s_row[x, k] = 0xFFFF
         rival = np.uint16(0xFFFF)
-        first_near = np.int16(bk - 1)
         for k in range(kmax):
-            v = s_row[x, k]
-            far = np.uint16(np.int16(k) - first_near) > np.uint16(2)
-            rival = min(rival, v if far else np.uint16(0xFFFF))
+            rival = min(rival, s_row[x, k])
         second = np.float32(rival)
         if second < 65535.0 and second * (np.float32(1.0) - uniqueness) < best:
             continue
@@ -285,8 +397,6 @@ def _select_row(
         ratio[x] = np.float32(1.0) if second >= 65535.0 else (second - best) / max(second, np.float32(1.0))
         sub[x] = 0.0
         if 0 < bk < kmax - 1:
-            lo = np.float32(s_row[x, bk - 1])
-            hi = np.float32(s_row[x, bk + 1])
             den = lo + hi - np.float32(2.0) * best
             if den > 0:
                 sub[x] = (lo - hi) / (np.float32(2.0) * den)
@@ -347,6 +457,38 @@ def _aggregate_select(
             else:
                 y0, y1 = (mid - 1, -1) if finish else (h - 1, mid - 1)
             _sweep(vol, census, shift, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf)
+    return disp, conf
+
+
+@_kernel(parallel=True)
+def _strips_select(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    shift: int,
+    img: np.ndarray,
+    p1: int,
+    p2: int,
+    gamma: float,
+    select: tuple[int, float, int, float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """5-path SGM aggregation and matching in two row strips side by side: returns (disparity, confidence).
+
+    The five paths all come from above or from the side (``_strip``), so one top-down pass per
+    strip completes S row by row and matches each row while it is in cache: no cost or sum volume.
+    The lower strip starts ``STRIP_WARMUP`` rows above its first matched row, so its paths from
+    above carry that much context into it (SGM paths forget their start within a few dozen rows);
+    the split row gives both strips as many rows. Two strips whatever the thread count, so the
+    result does not depend on it; this stage uses two cores at most.
+    """
+    h, w = img.shape
+    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
+    disp = np.full((h, w), HOLE, np.float32)
+    conf = np.zeros((h, w), np.float32)
+    warmup = min(STRIP_WARMUP, h // 2)
+    split = (h + warmup) // 2
+    for t in prange(2):
+        rows = (0, 0, split) if t == 0 else (split - warmup, split, h)
+        _strip(vol, census, shift, img, p2_of, p1, rows, select, disp, conf)
     return disp, conf
 
 

@@ -1,0 +1,125 @@
+"""The census core's matching against OpenCV's SGBM 3-way at three SIMD levels of this machine, interleaved.
+
+One child process per level (native, AVX2, 128-bit: readme_figures.SIMD_ENV, each with its own numba
+cache, compiled and warmed up first) keeps the matchers loaded; the parent asks each child in turn for
+one frame of each profile (each after a 50 ms pause, so no thread pool still spins from the match
+before), `--repeat` times, so a load change on the machine hits every level alike.
+Per level: the CPU and SIMD levels the child sees (stereo_depth.machine), median match ms of `default`
+(OpenCV SGBM 3-way), `quality` (census_sgm, 8 paths) and `quality` with `census_paths:=5`, and the two
+ratios against `default`. 640x480 EuRoC pair, 128 disparities.
+
+    .venv/bin/python bench/simd_match_ratio.py [--repeat 15] [--levels native avx2 128] [--markdown]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import parse_bench_arguments, table_header, table_row, times
+from readme_figures import SIMD_ENV, simd_env
+
+# (name, profile, overrides): OpenCV SGBM 3-way, then census_sgm with 8 paths (the profile) and with 5
+PROFILES: tuple[tuple[str, str, dict[str, int]], ...] = (
+    ("default", "default", {}),
+    ("quality", "quality", {}),
+    ("quality 5 paths", "quality", {"census_paths": 5}),
+)
+
+# before each match: the thread pools of the match before (OpenCV's, numba's TBB) stop spinning on the cores
+IDLE_S = 0.05
+
+
+def child(disparity_range: int) -> None:
+    """Serve frames: print the machine as this level sees it, then one line of match ms per line read."""
+    from pipeline_stages import load_pair
+
+    from stereo_depth.core.params import make_params
+    from stereo_depth.core.pipeline import StereoPipeline
+    from stereo_depth.machine import cpu_model, numba_simd, opencv_simd
+
+    left, right, camera = load_pair(640, 480)
+    pipelines = {
+        name: StereoPipeline(make_params(profile, {"disparity_range": disparity_range, **overrides}))
+        for name, profile, overrides in PROFILES
+    }
+
+    def frame() -> dict[str, float]:
+        ms = {}
+        for name, pipeline in pipelines.items():
+            time.sleep(IDLE_S)
+            ms[name] = pipeline.match(left, right, camera).timings_ms["match"]
+        return ms
+
+    for _ in range(3):  # compile or load the kernels, fill the caches
+        frame()
+    print(json.dumps({"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()}), flush=True)
+    for _ in sys.stdin:
+        print(json.dumps(frame()), flush=True)
+
+
+def start(level: str, disparity_range: int) -> subprocess.Popen[str]:
+    command = [sys.executable, __file__, "--child", "--disparity-range", str(disparity_range)]
+    env = {**os.environ, **simd_env(level)}
+    return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=15)
+    parser.add_argument("--levels", nargs="+", choices=list(SIMD_ENV), default=list(SIMD_ENV))
+    parser.add_argument("--disparity-range", type=int, default=128)
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    if "--child" in sys.argv:
+        child(parser.parse_args().disparity_range)
+        return
+    args = parse_bench_arguments(parser)
+    children = {level: start(level, args.disparity_range) for level in args.levels}
+    machines = {}
+    for level, process in children.items():  # one at a time: compiling two levels at once doubles both
+        assert process.stdout is not None
+        machines[level] = json.loads(process.stdout.readline())
+        print(f"{level}: ready", file=sys.stderr, flush=True)
+    runs: dict[str, list[dict[str, float]]] = {level: [] for level in children}
+    for _ in range(args.repeat):
+        for level, process in children.items():
+            assert process.stdin is not None and process.stdout is not None
+            process.stdin.write("frame\n")
+            process.stdin.flush()
+            runs[level].append(json.loads(process.stdout.readline()))
+    for process in children.values():
+        assert process.stdin is not None
+        process.stdin.close()
+        process.wait()
+    names = [name for name, _, _ in PROFILES]
+    columns = (
+        "level",
+        "CPU",
+        "numba SIMD",
+        "OpenCV SIMD",
+        *(f"{n} ms" for n in names),
+        *(f"{n} / default" for n in names[1:]),
+    )
+    day = time.strftime("%Y-%m-%d")
+    print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved; {day}")
+    if args.markdown:
+        print(table_header(columns))
+    for level, frames in runs.items():
+        ms = {n: statistics.median(f[n] for f in frames) for n in names}
+        machine = machines[level]
+        numba_level = machine["numba"].split(";")[0]
+        opencv_widest = [x.strip("*") for x in machine["opencv"].split("(")[0].split() if not x.endswith("?")][-1]
+        cells = (level, machine["cpu"], numba_level, f"up to {opencv_widest}", *(f"{ms[n]:.1f}" for n in names))
+        cells += tuple(times(ms[n] / ms["default"]) for n in names[1:])
+        print(table_row(cells) if args.markdown else "  ".join(cells))
+
+
+if __name__ == "__main__":
+    main()
