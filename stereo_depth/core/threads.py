@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import sys
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import cv2
 
@@ -44,3 +46,15 @@ def thread_counts() -> dict[str, int]:
     if numba is not None:
         counts["numba"] = numba.get_num_threads()
     return counts
+
+
+@contextmanager
+def opencv_threads(count: int) -> Iterator[None]:
+    """OpenCV's thread count for the work inside, then the count before. Process-wide, as OpenCV's is:
+    other threads' OpenCV calls meanwhile use it too (for `Halves`, whose two threads fill the cores)."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(count)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
