@@ -36,7 +36,7 @@ from stereo_depth.bag.reader import StereoBagReader
 from stereo_depth.bag.types import rosbags_types, typestore
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.matching import OpenCVMatcher, create_matcher
+from stereo_depth.core.matching import whole_image
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.frames import OutputState, decode_frame, frame_outputs, match_frame
@@ -105,8 +105,7 @@ def ours_unwritten(bag: Path, profile: str) -> float:
 def bare(bag: Path, profile: str) -> float:
     """frames/s of the hand-written loop: deserialize, pair by stamp, remap x2, match, reproject."""
     store = typestore()
-    matcher = create_matcher(make_params(profile))
-    assert isinstance(matcher, OpenCVMatcher)
+    matcher = whole_image(make_params(profile))
     start = time.perf_counter()
     done = 0
     waiting: dict[tuple[int, str], np.ndarray] = {}

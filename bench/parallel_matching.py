@@ -4,8 +4,8 @@ For each matcher setting, same frames, same run: ms per frame matching frame aft
 thread, and ms per frame with two threads each matching frames with a matcher of their own (as
 stereo_node's `matching_threads:=2` does); a throughput ratio near 1 means one frame already keeps
 both cores busy. OpenCV SGBM's SGBM and HH modes aggregate on one core by themselves; our matcher
-runs them on two overlapping halves at once (matching.Halves, bit-identical output): the "OpenCV whole
-image" rows time the plain OpenCV call for comparison.
+runs them, and BM, on two overlapping halves at once (matching.Halves, bit-identical output): the "OpenCV
+whole image" rows time the plain OpenCV call for comparison.
 
     .venv/bin/python bench/parallel_matching.py [--size 640x480] [--frames 10] [--markdown]
 """
@@ -22,7 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereo_depth.core.matching import Matcher, OpenCVMatcher, create_matcher, opencv_sgbm
+from stereo_depth.core import matching
+from stereo_depth.core.matching import Matcher, create_matcher
 from stereo_depth.core.params import StereoParams, make_params
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -34,6 +35,7 @@ HH = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": 1})
 # (name, parameters, True: the plain OpenCV call on the whole image instead of our matcher)
 SETTINGS = [
     ("bm (stereo_image_proc)", make_params("stereo_image_proc"), False),
+    ("  OpenCV whole image", make_params("stereo_image_proc"), True),
     ("sgbm mode SGBM (stereo_algorithm:=1)", SGBM, False),
     ("  OpenCV whole image", SGBM, True),
     ("sgbm mode HH", HH, False),
@@ -45,7 +47,7 @@ SETTINGS = [
 
 def matcher_for(params: StereoParams, whole_image: bool) -> Matcher:
     if whole_image:
-        return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
+        return matching.whole_image(params)
     return create_matcher(params)
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from stereo_depth.core import matching
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.matching import STRIP_OVERLAP, Halves, OpenCVMatcher, create_matcher, opencv_bm, opencv_sgbm
+from stereo_depth.core.matching import STRIP_OVERLAP, Halves, OpenCVMatcher, create_matcher, whole_image
 from stereo_depth.core.params import make_params
 from stereo_depth.core.threads import use_threads
 from stereo_depth.formats.euroc import stereo_camera_infos
@@ -42,7 +42,7 @@ def test_halves_equal_opencv_on_the_whole_image(mode: int, name: str, left: np.n
     params = make_params("stereo_image_proc", {"stereo_algorithm": 1, "sgbm_mode": mode})
     matcher = create_matcher(params)
     assert isinstance(matcher, Halves) and left.shape[0] >= 4 * STRIP_OVERLAP  # the halves are used
-    whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    whole = whole_image(params).compute(left, right)
     halves = matcher.compute(left, right).disparity
     assert np.isfinite(halves).mean() > 0.3
     np.testing.assert_array_equal(halves, whole.disparity)
@@ -55,7 +55,7 @@ def test_bm_halves_equal_opencv_on_the_whole_image(rows: int, name: str, left: n
     params = make_params("stereo_image_proc", {"disp12_max_diff": 1})  # BM, its speckle filter and LR check on
     matcher = create_matcher(params)
     assert isinstance(matcher, Halves) and params.speckle_size > 0
-    whole = OpenCVMatcher(opencv_bm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    whole = whole_image(params).compute(left, right)
     halves = matcher.compute(left, right).disparity
     assert np.isfinite(halves).mean() > 0.3
     np.testing.assert_array_equal(halves, whole.disparity)
@@ -67,7 +67,7 @@ def test_multi_core_modes_and_small_images_use_opencv_directly() -> None:
     _, left, right = PAIRS[0]
     params = dataclasses.replace(make_params("stereo_image_proc", {"stereo_algorithm": 1}), disparity_range=32)
     small_l, small_r = left[: 3 * STRIP_OVERLAP], right[: 3 * STRIP_OVERLAP]
-    whole = OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity).compute(small_l, small_r)
+    whole = whole_image(params).compute(small_l, small_r)
     np.testing.assert_array_equal(create_matcher(params).compute(small_l, small_r).disparity, whole.disparity)
 
 
@@ -75,7 +75,7 @@ def test_a_frame_given_one_thread_is_matched_whole_on_that_thread(monkeypatch: p
     """A fleet worker's share of one core, or a node matching two frames at once: no helper thread."""
     _, left, right = PAIRS[0]
     params = make_params("stereo_image_proc")
-    whole = OpenCVMatcher(opencv_bm(params, params.speckle_size), params.min_disparity).compute(left, right)
+    whole = whole_image(params).compute(left, right)
     monkeypatch.setattr(matching, "_lower_halves", lambda: pytest.fail("a helper thread was used"))
     before = use_threads(0)
     try:

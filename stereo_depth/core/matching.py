@@ -145,6 +145,12 @@ class Halves:
         return MatchResult(fixed_point_to_float(raw, p.min_disparity))
 
 
+def whole_image(params: StereoParams) -> OpenCVMatcher:
+    """OpenCV's BM or SGBM called on the whole image, as a script would: what `Halves` equals."""
+    build = opencv_bm if params.matcher == "bm" else opencv_sgbm
+    return OpenCVMatcher(build(params, params.speckle_size), params.min_disparity)
+
+
 def create_bm(params: StereoParams) -> Matcher:
     """StereoBM takes its speckle range in 1/16 px (StereoSGBM in pixels): as stereo_image_proc passes it."""
     reach = params.correlation_window_size // 2 + params.prefilter_size // 2 + 1
