@@ -362,6 +362,24 @@ def _chosen(
     return np.float32(np.rint(mean) * np.float32(1.0 / SUBPIXELS))  # NaN stays NaN
 
 
+def _agree(
+    support: np.float32,
+    trust: np.float32,
+    weight_sum: np.float32,
+    offset: np.float32,
+    v: np.float32,
+    candidate: np.float32,
+    confidence: np.float32,
+    weight: np.float32,
+    limit: np.float32,
+) -> tuple[np.float32, np.float32, np.float32, np.float32]:
+    """One candidate's sums after one frame's value `v`: support (frames within `limit`, 1/16 px),
+    confidence-weighted support, weight and weighted offset."""
+    d = v - candidate
+    agree = np.float32(1.0) if abs(d) <= limit else np.float32(0.0)
+    return support + agree, trust + agree * confidence, weight_sum + agree * weight, offset + agree * weight * d
+
+
 def _add_frame(
     sums: tuple[np.float32, ...],
     value: np.int16,
@@ -372,52 +390,14 @@ def _add_frame(
     c: np.float32,
     limit: np.float32,
 ) -> tuple[np.float32, ...]:
-    """One frame's value into a pixel's sums: per candidate a, b, c its support (frames within `limit`,
-    1/16 px), confidence-weighted support, weight and weighted offset; then the valid frames. A HOLE
-    agrees with a HOLE only, and a HOLE candidate never passes."""
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
-    support_a, trust_a, weight_a, offset_a, support_b, trust_b, weight_b, offset_b = sums[:8]
-    support_c, trust_c, weight_c, offset_c, valid = sums[8:]
+    """One frame's value into a pixel's sums: `_agree` for candidates a, b and c, then the valid frames.
+    A HOLE agrees with a HOLE only, and a HOLE candidate never passes."""
     v = np.float32(value)
-    valid += one if value != HOLE else zero
-    d = v - a
-    agree = one if abs(d) <= limit else zero
-    support_a, trust_a, weight_a, offset_a = (
-        support_a + agree,
-        trust_a + agree * confidence,
-        weight_a + agree * weight,
-        offset_a + agree * weight * d,
-    )
-    d = v - b
-    agree = one if abs(d) <= limit else zero
-    support_b, trust_b, weight_b, offset_b = (
-        support_b + agree,
-        trust_b + agree * confidence,
-        weight_b + agree * weight,
-        offset_b + agree * weight * d,
-    )
-    d = v - c
-    agree = one if abs(d) <= limit else zero
-    support_c, trust_c, weight_c, offset_c = (
-        support_c + agree,
-        trust_c + agree * confidence,
-        weight_c + agree * weight,
-        offset_c + agree * weight * d,
-    )
+    valid = sums[12] + (np.float32(1.0) if value != HOLE else np.float32(0.0))
     return (
-        support_a,
-        trust_a,
-        weight_a,
-        offset_a,
-        support_b,
-        trust_b,
-        weight_b,
-        offset_b,
-        support_c,
-        trust_c,
-        weight_c,
-        offset_c,
+        *_agree(sums[0], sums[1], sums[2], sums[3], v, a, confidence, weight, limit),
+        *_agree(sums[4], sums[5], sums[6], sums[7], v, b, confidence, weight, limit),
+        *_agree(sums[8], sums[9], sums[10], sums[11], v, c, confidence, weight, limit),
         valid,
     )
 
@@ -436,6 +416,7 @@ def _kernels() -> dict[str, Callable[..., Any]]:
 
     module = globals()  # the parallel kernel calls the compiled ones below it, and numba's prange
     module["prange"] = numba.prange
+    module["_agree"] = numba.njit(cache=True, inline="always")(_agree)
     module["_add_frame"] = numba.njit(cache=True, inline="always")(_add_frame)
     module["_chosen"] = numba.njit(cache=True, inline="always")(_chosen)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
