@@ -204,11 +204,7 @@ def _sweep(
     state = bufs.reshape(bufs.size)
     line = np.full(3 * n2, bufs[0, 0, 0, 0], np.uint8)  # horizontal path: zero start, then a ping-pong pair
     line[1 : nd + 1] = 0
-    right_cost = np.empty(w, np.uint16)
-    right_k = np.empty(w, np.uint16)
-    left_k = np.empty(w, np.int32)
-    ratio = np.empty(w, np.float32)
-    sub = np.empty(w, np.float32)
+    scratch = _selection_scratch(w)
     q1 = np.uint8(p1)
     no_census = np.empty(0, np.uint64)
     keep = np.uint16(0xFFFF) if finish else np.uint16(0)
@@ -244,7 +240,7 @@ def _sweep(
                 cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, sb], q1, b_p2)
             _add_paths(s_row, x, keep, line, h_out, state, (cur0 + s) * n2, span * n2, ndirs)
         if finish:
-            _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
+            _select_row(s_row, select, disp[y], conf[y], scratch)
 
 
 @_kernel()
@@ -287,11 +283,7 @@ def _strip(
     line[1 : nd + 1] = 0
     row_cost = np.empty((w, nd), np.uint8)
     s_row = np.empty((w, nd), np.uint16)
-    right_cost = np.empty(w, np.uint16)
-    right_k = np.empty(w, np.uint16)
-    left_k = np.empty(w, np.int32)
-    ratio = np.empty(w, np.float32)
-    sub = np.empty(w, np.float32)
+    scratch = _selection_scratch(w)
     q1 = np.uint8(p1)
     no_census = np.empty(0, np.uint64)
     for y in range(start, end):
@@ -329,7 +321,20 @@ def _strip(
             h_min = _path(cost, x, line, h_in * n2, h_out, h_min, q1, h_p2)
             _add_line(s_row, x, line, h_out)
         if y >= first:
-            _select_row(s_row, select, disp[y], conf[y], right_cost, right_k, left_k, ratio, sub)
+            _select_row(s_row, select, disp[y], conf[y], scratch)
+
+
+@_kernel(inline=True)
+def _selection_scratch(w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``_select_row``'s scratch rows of width w: the right view's best cost and disparity, the left
+    view's winner, the uniqueness ratio and the sub-pixel offset; allocated once per sweep or strip."""
+    return (
+        np.empty(w, np.uint16),
+        np.empty(w, np.uint16),
+        np.empty(w, np.int32),
+        np.empty(w, np.float32),
+        np.empty(w, np.float32),
+    )
 
 
 @_kernel()
@@ -338,16 +343,12 @@ def _select_row(
     select: tuple[int, float, int, float, float],
     disp: np.ndarray,
     conf: np.ndarray,
-    right_cost: np.ndarray,
-    right_k: np.ndarray,
-    left_k: np.ndarray,
-    ratio: np.ndarray,
-    sub: np.ndarray,
+    scratch: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> None:
     """Winner-take-all on one row of S for both views, uniqueness + left-right check, parabola, confidence.
 
     ``select`` is (min_d, uniqueness, disp12, conf_gain, lr_penalty); ``disp`` / ``conf`` are the
-    output row (``HOLE`` / 0 on entry), the other arrays scratch of width w.
+    output row (``HOLE`` / 0 on entry), ``scratch`` the rows of ``_selection_scratch``.
     The right view's disparity at xr is argmin_k S[xr + min_d + k, k]: the same aggregated row
     read along the diagonal, so no second matching pass is needed. For each x the right view's
     best cost and disparity so far (``right_cost``, ``right_k``) are updated for every k in one
@@ -356,6 +357,7 @@ def _select_row(
     smallest disparity in both views (a strict < along increasing k). ``s_row`` is spent afterwards:
     the three sums around each winner are overwritten so the rival search is a plain minimum.
     """
+    right_cost, right_k, left_k, ratio, sub = scratch
     min_d, uniqueness, disp12, conf_gain, lr_penalty = select
     w, nd = s_row.shape
     right_cost[:] = 0xFFFF
