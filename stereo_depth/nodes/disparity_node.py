@@ -9,7 +9,7 @@ from typing import Any
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.core.temporal import TemporalFilter, compile_kernels
+from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.frames import filter_over_time, image_outputs
 from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
@@ -34,11 +34,6 @@ class DisparityNode(StereoIONode):
     def open_outputs(self) -> None:
         self._disparity = self.output(DisparityImage, "disparity")
         self._temporal = TemporalFilter()  # frames come one at a time, in the order they were matched
-
-    def start_workers(self) -> None:
-        super().start_workers()
-        if self.parameters.settings.output.temporal_filter:
-            compile_kernels()  # now, not on the first frame
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert settings.stereo is not None

@@ -28,7 +28,6 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
-from stereo_depth.core.temporal import compile_kernels
 from stereo_depth.frames import OUTPUTS, Geometry, OutputState, frame_outputs
 from stereo_depth.options import (
     CAMERA_OPTIONS,
@@ -125,8 +124,6 @@ class StereoNode(StereoIONode):
             self._run_cloud_stage, self.diagnostics.cloud_dropped, options.max_waiting_frames
         )
         self._cloud_stage.budget_s = options.max_latency_ms / 1000.0
-        if self.parameters.settings.output.temporal_filter:
-            compile_kernels()  # now, not on the first frame
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         """First stage: decode and match (several frames at once with matching_threads); then, in input

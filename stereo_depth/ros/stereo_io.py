@@ -38,6 +38,7 @@ from sensor_msgs.msg import CompressedImage
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
+from stereo_depth.core.temporal import compile_kernels
 from stereo_depth.core.threads import use_threads
 from stereo_depth.errors import CalibrationError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
@@ -217,6 +218,8 @@ class StereoIONode(Node):
         )
         self._worker.parallel = self.frames_at_once(settings)
         self._worker.budget_s = settings.options.max_latency_ms / 1000.0
+        if settings.output.temporal_filter:
+            compile_kernels()  # the temporal filter's, now rather than on the first frame
 
     @contextmanager
     def outputs_in_order(self) -> Iterator[bool]:
