@@ -12,9 +12,11 @@ import logging
 import multiprocessing
 import os
 import signal
+import uuid
 from collections.abc import Generator
 from multiprocessing.connection import Connection, wait
 from multiprocessing.context import SpawnContext
+from pathlib import Path
 from typing import Any, Protocol, cast
 
 from stereo_depth.core.params import StereoParams
@@ -159,10 +161,16 @@ class RayBackend:
     """`--ray [ADDRESS]`: every task a Ray task asking for the cores its matcher uses, and matching on
     as many OpenCV / numba threads. No address
     starts a local Ray instance; `auto` or `ray://host:port` joins a running cluster, whose workers
-    must reach the inputs and the output folder at the same paths (a shared file system)."""
+    must reach the inputs and the output folder at the same paths (a shared file system).
 
-    def __init__(self, address: str | None) -> None:
+    An interrupted run stops its tasks through a file in the output folder (`Task.stop_file`), not
+    with `ray.cancel`: Ray 2.x aborts the driver when a cancel crosses a task that is finishing
+    ("Tried to complete task that was not pending", ray-project/ray#54798). Only a task that has not
+    stopped after CANCEL_GRACE_SECONDS is cancelled by force."""
+
+    def __init__(self, address: str | None, out_dir: Path) -> None:
         self.address = address or None
+        self.stop_file = out_dir / f".stop-{uuid.uuid4().hex}"
 
     def run(self, tasks: list[Task]) -> Results:
         if not tasks:
@@ -182,7 +190,9 @@ class RayBackend:
                 raise StereoDepthError(msg) from exc
         cores = matcher_cores(tasks[0].params)
         remote = ray.remote(num_cpus=cores, max_retries=0)(run_task)
-        task_of = {remote.remote(dataclasses.replace(task, threads=cores)): task for task in tasks}
+        task_of = {
+            remote.remote(dataclasses.replace(task, threads=cores, stop_file=self.stop_file)): task for task in tasks
+        }
         pending = list(task_of)
         try:
             while pending:
@@ -199,12 +209,13 @@ class RayBackend:
             if started_here:
                 ray.shutdown()
 
-    @staticmethod
-    def _cancel(ray: Any, pending: list[Any]) -> None:
-        """Interrupt running tasks (KeyboardInterrupt in the worker: its output is deleted), give them
-        a moment to unwind, then kill what is left; the caller sweeps any temporary folder they left."""
-        for ref in pending:
-            ray.cancel(ref)
-        _, stuck = ray.wait(pending, num_returns=len(pending), timeout=CANCEL_GRACE_SECONDS)
-        for ref in stuck:
-            ray.cancel(ref, force=True)
+    def _cancel(self, ray: Any, pending: list[Any]) -> None:
+        """Ask every task to stop (running ones delete their output, queued ones return at once), give
+        them a moment, then kill what is left; the caller sweeps any temporary folder they left."""
+        self.stop_file.touch()
+        try:
+            _, stuck = ray.wait(pending, num_returns=len(pending), timeout=CANCEL_GRACE_SECONDS)
+            for ref in stuck:
+                ray.cancel(ref, force=True)
+        finally:
+            self.stop_file.unlink()

@@ -35,9 +35,9 @@ class FleetSettings:
     report: Path | None = None
 
 
-def backend_for(settings: FleetSettings) -> Backend:
+def backend_for(settings: FleetSettings, out_dir: Path) -> Backend:
     if settings.ray_address is not None:
-        return RayBackend(settings.ray_address)
+        return RayBackend(settings.ray_address, out_dir)
     return InProcess() if settings.jobs == 1 else LocalPool(settings.jobs)
 
 
@@ -108,7 +108,7 @@ class FleetRun:
         tasks = [task for plan in self.plans.values() for task in plan.tasks]
         progress = ProgressLine(len(self.plans))
         start = time.perf_counter()
-        results = backend_for(self.settings).run(tasks)
+        results = backend_for(self.settings, self.out_dir).run(tasks)
         try:
             progress.update(self.reports)
             for result in results:

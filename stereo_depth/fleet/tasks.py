@@ -1,8 +1,9 @@
 """What one worker runs: a bag, or one time window of a bag, through `process_bag`.
 
 A task never raises for a bad bag: the error comes back as text in its result, so one damaged bag
-cannot stop the others. Only an interruption (Ctrl-C, a cancelled task) propagates, after
-`process_bag` has removed its half-written output.
+cannot stop the others. Only an interruption (Ctrl-C, a killed worker) propagates, after
+`process_bag` has removed its half-written output. A task given a `stop_file` also stops, between
+frames, once that file exists (how a Ray run is interrupted): its output is removed the same way.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class Task:
     shard: int = 0
     window: TimeWindow | None = None
     threads: int = 0  # OpenCV / numba threads: the cores this task was given; 0 = as the process has them
+    stop_file: Path | None = None  # once it exists, the task stops between frames and leaves no output
 
 
 @dataclass
@@ -84,15 +86,32 @@ def warm_up(params: StereoParams) -> None:
     create_matcher(params).compute(image, image)
 
 
+STOPPED = "stopped: the run was interrupted"
+
+
+class StopRequestedError(Exception):
+    """The task's stop file appeared: unwinds process_bag, whose writer deletes the partial output."""
+
+
+def _stop_if_asked(stop_file: Path, *_: object) -> None:
+    if stop_file.exists():
+        raise StopRequestedError
+
+
 def run_task(task: Task) -> TaskResult:
+    if task.stop_file is not None and task.stop_file.exists():  # queued behind others when the run stopped
+        return TaskResult(task.bag, task.shard, error=STOPPED)
     warm_up(task.params)
     if task.threads:
         use_threads(task.threads)  # after warm_up, which loads numba for census_sgm
     result = TaskResult(task.bag, task.shard)
     start = time.perf_counter()
     options = dataclasses.replace(task.options, window=task.window, progress=False)
+    stop = functools.partial(_stop_if_asked, task.stop_file) if task.stop_file is not None else None
     try:
-        summary = process_bag(task.source, task.output, task.params, options)
+        summary = process_bag(task.source, task.output, task.params, options, on_frame=stop)
+    except StopRequestedError:
+        result.error = STOPPED
     except Exception as exc:  # any failure of one bag is that bag's result, not the run's
         result.error = str(exc) if isinstance(exc, StereoDepthError) else f"{type(exc).__name__}: {exc}"
     else:
