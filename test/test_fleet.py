@@ -14,15 +14,19 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from stereo_depth.bag.process import ProcessOptions
 from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
+from stereo_depth.core.params import make_params
+from stereo_depth.fleet.tasks import STOPPED, Task, run_task
 
 from conftest import SCENES, euroc_sequence
 
@@ -310,3 +314,24 @@ def test_shards_too_slow_for_the_temporal_filters_lead_in_are_refused(
     code, errors, _ = run_fleet(capsys, str(bag), "--out-dir", str(tmp_path / "out"), "--shard-seconds", "3", *temporal)
     assert code == 1 and len(errors) == 1 and "needs 16 frames before it" in errors[0], errors
     assert not (tmp_path / "out" / "slow").exists()
+
+
+@pytest.mark.parametrize("when", ["before it starts", "between frames"])
+def test_a_task_whose_stop_file_appears_stops_and_leaves_no_output(tmp_path: Path, long_bag: Path, when: str) -> None:
+    """How an interrupted Ray run stops its tasks (not with ray.cancel, which can abort Ray's driver)."""
+    out, stop = tmp_path / "out", tmp_path / ".stop"
+    out.mkdir()
+    task = Task("long", long_bag, out / "long", make_params(profile="quality"), ProcessOptions(), stop_file=stop)
+    if when == "before it starts":
+        stop.touch()
+    else:  # once the task's hidden output folder holds a part written
+
+        def stop_when_writing() -> None:
+            while not any(out.glob(".*/*")):
+                time.sleep(0.01)
+            stop.touch()
+
+        threading.Thread(target=stop_when_writing, daemon=True).start()
+    result = run_task(task)
+    assert result.error == STOPPED and result.frames_out == 0
+    assert list(out.iterdir()) == []
