@@ -267,18 +267,7 @@ def _filter_range(
     weights."""
     one = np.float32(1.0)
     limit = delta * np.float32(SUBPIXELS)
-    v0, v1, v2, v3 = (
-        values[slots[0], first:last],
-        values[slots[1], first:last],
-        values[slots[2], first:last],
-        values[slots[3], first:last],
-    )
-    v4, v5, v6, v7 = (
-        values[slots[4], first:last],
-        values[slots[5], first:last],
-        values[slots[6], first:last],
-        values[slots[7], first:last],
-    )
+    v0, v1, v2, v3, v4, v5, v6, v7 = _frame_rows(values, slots, first, last)
     d0, d1, d2, d3, d4, d5, d6, d7 = (
         decays[0],
         decays[1],
@@ -303,18 +292,7 @@ def _filter_range(
             sums = _add_frame(sums, v7[i], one, d7, a, b, c, limit)
             result[i] = _chosen(sums, a, b, c, persistence)
     else:
-        c0, c1, c2, c3 = (
-            weights[slots[0], first:last],
-            weights[slots[1], first:last],
-            weights[slots[2], first:last],
-            weights[slots[3], first:last],
-        )
-        c4, c5, c6, c7 = (
-            weights[slots[4], first:last],
-            weights[slots[5], first:last],
-            weights[slots[6], first:last],
-            weights[slots[7], first:last],
-        )
+        c0, c1, c2, c3, c4, c5, c6, c7 = _frame_rows(weights, slots, first, last)
         for i in range(last - first):
             a, b, c = np.float32(v0[i]), np.float32(v1[i]), np.float32(v2[i])
             w = np.float32(c0[i])
@@ -334,6 +312,22 @@ def _filter_range(
             w = np.float32(c7[i])
             sums = _add_frame(sums, v7[i], w, d7 * w, a, b, c, limit)
             result[i] = _chosen(sums, a, b, c, persistence)
+
+
+def _frame_rows(
+    frames: np.ndarray, slots: np.ndarray, first: int, last: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The eight stored frames' pixels first..last-1, newest first, as views indexed from 0."""
+    return (
+        frames[slots[0], first:last],
+        frames[slots[1], first:last],
+        frames[slots[2], first:last],
+        frames[slots[3], first:last],
+        frames[slots[4], first:last],
+        frames[slots[5], first:last],
+        frames[slots[6], first:last],
+        frames[slots[7], first:last],
+    )
 
 
 _NO_SUMS = (np.float32(0.0),) * 13  # per candidate a, b, c: support, trust, weight, offset; then valid frames
@@ -419,6 +413,7 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["_agree"] = numba.njit(cache=True, inline="always")(_agree)
     module["_add_frame"] = numba.njit(cache=True, inline="always")(_add_frame)
     module["_chosen"] = numba.njit(cache=True, inline="always")(_chosen)
+    module["_frame_rows"] = numba.njit(cache=True, inline="always")(_frame_rows)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
     return {
         "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
