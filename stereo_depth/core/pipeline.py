@@ -19,6 +19,7 @@ from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
+from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.errors import ImageError
 
@@ -88,6 +89,7 @@ class StereoPipeline:
     are shared."""
 
     def __init__(self, params: StereoParams | None = None) -> None:
+        keep_freed_memory()  # each frame's buffers reuse the last frame's pages (process-wide, see core.memory)
         self._params = (params or make_params()).validate()
         self._local = threading.local()
         self._camera: StereoCamera | None = None
