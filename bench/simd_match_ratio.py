@@ -5,8 +5,8 @@ cache, compiled and warmed up first) keeps the matchers loaded; the parent asks 
 one frame of each profile (each after a 50 ms pause, so no thread pool still spins from the match
 before), `--repeat` times, so a load change on the machine hits every level alike.
 Per level: the CPU and SIMD levels the child sees (stereo_depth.machine), median match ms of `default`
-(OpenCV SGBM 3-way), `quality` (census_sgm, 8 paths) and `quality` with `census_paths:=5`, and the two
-ratios against `default`. 640x480 EuRoC pair, 128 disparities.
+(OpenCV SGBM 3-way), `quality` (census_sgm, 6 paths) and `quality` with `census_paths:=8` and `:=5`, and
+their ratios against `default`. 640x480 EuRoC pair, 128 disparities.
 
     .venv/bin/python bench/simd_match_ratio.py [--repeat 15] [--levels native avx2 128] [--markdown]
 """
@@ -26,10 +26,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 from markdown_table import parse_bench_arguments, table_header, table_row, times
 from readme_figures import SIMD_ENV, simd_env
 
-# (name, profile, overrides): OpenCV SGBM 3-way, then census_sgm with 8 paths (the profile) and with 5
+# (name, profile, overrides): OpenCV SGBM 3-way, then census_sgm with 6 paths (the profile), 8 and 5
 PROFILES: tuple[tuple[str, str, dict[str, int]], ...] = (
     ("default", "default", {}),
     ("quality", "quality", {}),
+    ("quality 8 paths", "quality", {"census_paths": 8}),
     ("quality 5 paths", "quality", {"census_paths": 5}),
 )
 

@@ -32,6 +32,8 @@ def cost_shift(census_bits: int, p1: float, p2: float) -> tuple[int, int, int]:
 
 # Predecessor offsets (dy, dx) of the 8 paths; the first 4 are the 4-path mode.
 PATHS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, 1), (-1, -1), (1, 1), (1, -1))
+# The 6-path mode: the 4 paths and one diagonal both ways (from the upper left and from the lower right).
+SIX_PATHS = (*PATHS[:4], (-1, -1), (1, 1))
 # The 5-path mode: the paths from the side and from the row above, aggregated per row strip.
 TOP_DOWN_PATHS = ((0, -1), (0, 1), (-1, 0), (-1, 1), (-1, -1))
 STRIP_WARMUP = 48  # the 5-path mode's lower strip starts this many rows (at most half the image) above its first
@@ -128,7 +130,7 @@ def match(
     P2: float,
     uniqueness_ratio: float,
     disp12_max_diff: int,
-    paths: int = 8,
+    paths: int = 6,
     p2_gamma: float = 4.0,
     conf_gain: float = 1.5,
     lr_penalty: float = 0.5,
@@ -142,7 +144,7 @@ def match(
         for start, first, end in strips(left.shape[0]):
             total[first:end] = aggregate(cost[start:end], left[start:end], p1, p2_of, TOP_DOWN_PATHS)[first - start :]
     else:
-        total = aggregate(cost, left, p1, p2_of, PATHS[:paths])
+        total = aggregate(cost, left, p1, p2_of, SIX_PATHS if paths == 6 else PATHS[:paths])
     h, w, nd = total.shape
     disparity = np.full((h, w), np.nan, np.float32)
     confidence = np.zeros((h, w), np.float32)

@@ -167,7 +167,7 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize(
     ("paths", "min_disparity", "num_disparities"),
-    [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70), (5, 0, 24), (5, 3, 37)],
+    [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70), (6, 0, 24), (6, 3, 37), (6, 0, 70), (5, 0, 24), (5, 3, 37)],
 )
 def test_core_computes_exactly_what_the_plain_reference_defines(
     paths: int, min_disparity: int, num_disparities: int
@@ -257,7 +257,7 @@ def test_rejects_colour_input() -> None:
 
 @pytest.mark.parametrize(
     ("keywords", "message"),
-    [({"min_disparity": -1}, "min_disparity"), ({"num_disparities": 0}, "num_disparities"), ({"paths": 6}, "paths")],
+    [({"min_disparity": -1}, "min_disparity"), ({"num_disparities": 0}, "num_disparities"), ({"paths": 7}, "paths")],
 )
 def test_rejects_settings_the_kernels_cannot_honour(keywords: dict[str, int], message: str) -> None:
     img = np.zeros((20, 30), np.uint8)

@@ -171,7 +171,7 @@ def min_image_size(params: StereoParams) -> tuple[int, int]:
 
 
 class CensusSGMMatcher:
-    """Our own core (census cost, 8-path semi-global aggregation, LR check, sub-pixel, confidence).
+    """Our own core (census cost, 6-path semi-global aggregation (census_paths), LR check, sub-pixel, confidence).
 
     numba compiles it on first use (then loads it from the cache), so it is imported only when chosen.
     """

@@ -1,4 +1,4 @@
-"""Hamming costs, semi-global aggregation along 4, 5 or 8 paths, and the winner selection it feeds.
+"""Hamming costs, semi-global aggregation along 4, 5, 6 or 8 paths, and the winner selection it feeds.
 
 Selection runs row by row inside the aggregation, as soon as the row's sums are complete, so the
 two share this file (numba's cache sees only a function's own file; kernels that call each other
@@ -119,6 +119,9 @@ def _add_paths(
             a = np.uint16(state[np.uint64(o0 + step + 1 + k)])
             b = np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
             acc[x, k] = np.uint16(acc[x, k] + a + b)
+    elif ndirs == 2:
+        for k in range(acc.shape[1]):
+            acc[x, k] = np.uint16(acc[x, k] + np.uint16(state[np.uint64(o0 + step + 1 + k)]))
 
 
 @_kernel(inline=True)
@@ -180,12 +183,13 @@ def _sweep(
     disp: np.ndarray,
     conf: np.ndarray,
 ) -> None:
-    """Rows y0, y0 + sy, ... (up to y1) of one vertical sweep: 2 or 4 of the 8 SGM paths.
+    """Rows y0, y0 + sy, ... (up to y1) of one vertical sweep: 2, 3 or 4 of the 8 SGM paths.
 
     A top-down sweep (sy = 1) runs the left-to-right path and the paths coming from (y-1, x),
     (y-1, x+1), (y-1, x-1); a bottom-up sweep (sy = -1) the right-to-left path and those from
-    (y+1, x), (y+1, x+1), (y+1, x-1). Only the horizontal and vertical paths when ``bufs`` holds
-    one direction (4-path mode).
+    (y+1, x), (y+1, x+1), (y+1, x-1). With two directions in ``bufs`` (6-path mode) the diagonal
+    is the one from the column visited before, (y-1, x-1) top-down and (y+1, x+1) bottom-up; with one
+    (4-path mode), only the horizontal and vertical paths.
 
     ``bufs[y & 1, j]`` holds row y's L_r for vertical / diagonal direction j, one slot per
     column in sweep order (slot i + 1 for the i-th column visited, so memory is walked forwards
@@ -238,6 +242,10 @@ def _sweep(
                 cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, sa], q1, a_p2)
                 ib, ob = (prev0 + 2 * span + sb) * n2, (cur0 + 2 * span + s) * n2
                 cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, sb], q1, b_p2)
+            elif ndirs == 2:  # the diagonal from the column visited before: (y-1, x-1) down, (y+1, x+1) up
+                d_p2 = p2_of[abs(c - np.int64(img[yp, min(max(x - sy, 0), w - 1)]))]
+                idg, odg = (prev0 + span + s - 1) * n2, (cur0 + span + s) * n2
+                cur_min[1, s] = _path(cost, x, state, idg, odg, prev_min[1, s - 1], q1, d_p2)
             _add_paths(s_row, x, keep, line, h_out, state, (cur0 + s) * n2, span * n2, ndirs)
         if finish:
             _select_row(s_row, select, disp[y], conf[y], scratch)
@@ -430,7 +438,7 @@ def _aggregate_select(
     paths: int,
     select: tuple[int, float, int, float, float],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """8-path (or 4-path) SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
+    """8-, 6- or 4-path SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
 
     Two sweeps run side by side, one top-down and one bottom-up, each carrying half of the paths
     (``_sweep``). Until they meet in the middle row each stores S on its own half of the image;
@@ -442,7 +450,7 @@ def _aggregate_select(
     640x480). The price: this stage uses two cores at most.
     """
     h, w, nd = vol.shape
-    ndirs = 3 if paths == 8 else 1
+    ndirs = 3 if paths == 8 else 2 if paths == 6 else 1
     p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
     bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint8)  # (sweep, row parity, direction, slot, d)
     bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
