@@ -189,6 +189,8 @@ def performance(run: Run) -> bool:
     ok = run.bench("pipeline_stages.py", quick=("--repeat", "2")) and ok
     print("\nThe census core against SGBM 3-way at three SIMD levels, interleaved (`bench/simd_match_ratio.py`):\n")
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
+    print("\nPage faults and time per frame, freed memory kept or not (`bench/page_faults.py`):\n")
+    ok = run.bench("page_faults.py", quick=("--repeat", "2")) and ok
     print("\nOffline, `stereo-depth process` against a bare loop (`bench/offline_process.py`):\n")
     arguments = ("--profiles", "stereo_image_proc", "--sizes", "640x480", "--frames", "100")
     return run.bench("offline_process.py", *arguments, quick=("--frames", "20", "--repeats", "1")) and ok
