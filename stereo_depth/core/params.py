@@ -59,7 +59,7 @@ class StereoParams:
     census_paths: int = option(
         6,
         "census_sgm aggregation paths: 6 (two sweeps over the cost volume: the 4 straight paths and one "
-        "diagonal both ways; within 0.001 of 8 in bad-1, bad-2 and density over 38 scenes, ~12% sooner), 8 "
+        "diagonal both ways; within 0.001 of 8 in bad-1, bad-2 and density over 38 scenes, ~8% sooner), 8 "
         "(both diagonals) or 5 (one pass in row strips that stay in cache: 1.3-1.7x sooner at every SIMD "
         "level; bad-1 0.010 and bad-2 0.004 worse)",
         choices=(6, 8, 5),

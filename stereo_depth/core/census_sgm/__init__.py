@@ -67,7 +67,7 @@ def census_sgm(
     census bits x window area. ``uniqueness_ratio`` is a percentage as in OpenCV; ``disp12_max_diff``
     < 0 disables the left-right check. ``census_size`` is (height, width), at most 63 bits.
     ``paths`` is 4 (horizontal + vertical), 6 (those and the diagonal from the upper left and from the
-    lower right; within 0.001 of 8 in bad-1, bad-2 and density over the 38 scenes, ~12 % sooner) or 8,
+    lower right; within 0.001 of 8 in bad-1, bad-2 and density over the 38 scenes, ~8 % sooner) or 8,
     aggregated by two sweeps over the whole cost volume,
     or 5 (horizontal + the three from the row above), aggregated in one top-down pass per row strip
     with nothing of volume size in memory (``_strips_select``): 1.3-1.7x sooner at AVX-512, AVX2 and
