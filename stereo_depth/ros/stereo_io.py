@@ -481,8 +481,9 @@ def timed(stages: dict[str, float], name: str, start: float) -> None:
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
-    """rclpy Jazzy's main(). SIGINT / SIGTERM raise SystemExit(0) (`exit_quietly_on_signals`), so the
-    `finally` below stops the worker and destroys the node before the process ends with 0.
+    """rclpy Jazzy's main(). SIGINT / SIGTERM end the spin loop below, or raise SystemExit(0) during
+    start-up (`exit_quietly_on_signals`), so the `finally` below stops the worker and destroys the node
+    before the process ends with 0.
     A node that cannot start (bad --ros-args, --params-file or parameter value) says why in one
     line and exits with 2, rather than run with part of its configuration."""
     exit_quietly_on_signals()
@@ -504,12 +505,19 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         # The signal handler runs between two bytecodes of this thread: something must wake the spin, also in
         # a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
         node.create_timer(SIGNAL_POLL_S, lambda: None)
-        rclpy.spin(node)
+        executor = rclpy.get_global_executor()
+        executor.add_node(node)
+        _SPINNING.set()
+        try:
+            while not _SIGNALLED.is_set() and executor.context.ok():
+                executor.spin_once()
+        finally:
+            executor.remove_node(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
-        # The signal's SystemExit raised inside rclpy's C++ code (converting a message being taken) comes
-        # out as pybind11's RuntimeError ("Unable to convert call argument"): still the signal's exit.
+        # The signal's SystemExit raised inside rclpy's C++ code during start-up comes out as pybind11's
+        # RuntimeError ("Unable to convert call argument"): still the signal's exit.
         if not _SIGNALLED.is_set():
             raise
     except (StereoDepthError, InvalidParameterValueException, InvalidParameterTypeException) as exc:
@@ -524,14 +532,19 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
 def exit_quietly_on_signals() -> None:
     """Ctrl-C or SIGTERM end a node with exit code 0 and no traceback, whenever they arrive. The handler
-    stays in charge after `rclpy.init` (which is told to install none): raising SystemExit between two
-    bytecodes of the main thread unwinds through `run_node`'s cleanup without racing rclpy's C code,
-    which rclpy's own SIGTERM handler does when it shuts the context down from another thread."""
+    stays in charge after `rclpy.init` (which is told to install none). During start-up it raises
+    SystemExit between two bytecodes of the main thread, which unwinds through `run_node`'s cleanup.
+    Once the node spins it only sets `_SIGNALLED`, and the spin loop ends within SIGNAL_POLL_S: an
+    exception raised there could land inside rclpy's executor half-way through building a Task, whose
+    `__del__` then prints a traceback ('Task' object has no attribute '_exception'). Either way nothing
+    races rclpy's C code, as rclpy's own SIGTERM handler does when it shuts the context down from
+    another thread."""
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _exit_quietly)
 
 
 _SIGNALLED = threading.Event()  # SIGINT / SIGTERM arrived: the process is on its way out
+_SPINNING = threading.Event()  # run_node spins: a signal ends the spin loop instead of raising
 
 
 def _exit_quietly(signum: int, frame: FrameType | None) -> None:
@@ -539,7 +552,8 @@ def _exit_quietly(signum: int, frame: FrameType | None) -> None:
     _SIGNALLED.set()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)  # a second signal must not interrupt the cleanup
-    raise SystemExit(0)
+    if not _SPINNING.is_set():
+        raise SystemExit(0)
 
 
 def _rcl_reason(exc: Exception) -> str:
