@@ -13,21 +13,21 @@ pair, 128 disparities.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import statistics
-import subprocess
 import sys
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from interleaved import IDLE_S, frames_in_turn, serve, start
 from markdown_table import parse_bench_arguments, table_header, table_row, times
 from readme_figures import SIMD_ENV, simd_env
 
 VARIANTS = ("glibc", "kept")
-IDLE_S = 0.05  # before each frame: the previous frame's thread pools stop spinning
 
 
 def child(variant: str, profiles: list[str], disparity_range: int) -> None:
@@ -42,26 +42,22 @@ def child(variant: str, profiles: list[str], disparity_range: int) -> None:
     left, right, camera = load_pair(640, 480)
     pipelines = {p: StereoPipeline(make_params(p, {"disparity_range": disparity_range})) for p in profiles}
 
-    def measured(work: object) -> tuple[float, int]:
+    def measured(work: Callable[[], object]) -> tuple[float, int]:
         time.sleep(IDLE_S)
         faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-        start = time.perf_counter()
-        work()  # type: ignore[operator]
-        ms = (time.perf_counter() - start) * 1000.0
+        began = time.perf_counter()
+        work()
+        ms = (time.perf_counter() - began) * 1000.0
         return ms, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
 
     def frame() -> dict[str, tuple[float, int]]:
         out = {}
         for name, pipeline in pipelines.items():
-            out[f"{name} match"] = measured(lambda p=pipeline: p.match(left, right, camera))
-            out[f"{name} process"] = measured(lambda p=pipeline: p.process(left, right, camera))
+            out[f"{name} match"] = measured(partial(pipeline.match, left, right, camera))
+            out[f"{name} process"] = measured(partial(pipeline.process, left, right, camera))
         return out
 
-    for _ in range(3):  # compile or load the kernels, reach the steady state
-        frame()
-    print("ready", flush=True)
-    for _ in sys.stdin:
-        print(json.dumps(frame()), flush=True)
+    serve(frame, "ready")
 
 
 def main() -> None:
@@ -78,30 +74,8 @@ def main() -> None:
     args = parse_bench_arguments(parser)
     common = ["--profiles", *args.profiles, "--disparity-range", str(args.disparity_range)]
     env = {**os.environ, **simd_env(args.simd)}
-    children = {
-        v: subprocess.Popen(
-            [sys.executable, __file__, "--child", v, *common],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            env=env,
-        )
-        for v in VARIANTS
-    }
-    for process in children.values():
-        assert process.stdout is not None
-        process.stdout.readline()
-    runs: dict[str, list[dict[str, list[float]]]] = {v: [] for v in VARIANTS}
-    for _ in range(args.repeat):
-        for variant, process in children.items():
-            assert process.stdin is not None and process.stdout is not None
-            process.stdin.write("frame\n")
-            process.stdin.flush()
-            runs[variant].append(json.loads(process.stdout.readline()))
-    for process in children.values():
-        assert process.stdin is not None
-        process.stdin.close()
-        process.wait()
+    children = {v: start([__file__, "--child", v, *common], env) for v in VARIANTS}
+    _, runs = frames_in_turn(children, args.repeat)
     print(f"640x480, {args.disparity_range} disparities, SIMD level {args.simd}, {args.repeat} frames, interleaved")
     columns = ("profile", "stage", "glibc ms", "kept ms", "kept / glibc", "glibc faults", "kept faults")
     print(table_header(columns) if args.markdown else "  ".join(columns))

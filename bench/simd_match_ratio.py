@@ -14,15 +14,14 @@ their ratios against `default`. 640x480 EuRoC pair, 128 disparities.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from interleaved import IDLE_S, frames_in_turn, serve, start
 from markdown_table import parse_bench_arguments, table_header, table_row, times
 from readme_figures import SIMD_ENV, simd_env
 
@@ -33,9 +32,6 @@ PROFILES: tuple[tuple[str, str, dict[str, int]], ...] = (
     ("quality 8 paths", "quality", {"census_paths": 8}),
     ("quality 5 paths", "quality", {"census_paths": 5}),
 )
-
-# before each match: the thread pools of the match before (OpenCV's, numba's TBB) stop spinning on the cores
-IDLE_S = 0.05
 
 
 def child(disparity_range: int) -> None:
@@ -59,17 +55,7 @@ def child(disparity_range: int) -> None:
             ms[name] = pipeline.match(left, right, camera).timings_ms["match"]
         return ms
 
-    for _ in range(3):  # compile or load the kernels, fill the caches
-        frame()
-    print(json.dumps({"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()}), flush=True)
-    for _ in sys.stdin:
-        print(json.dumps(frame()), flush=True)
-
-
-def start(level: str, disparity_range: int) -> subprocess.Popen[str]:
-    command = [sys.executable, __file__, "--child", "--disparity-range", str(disparity_range)]
-    env = {**os.environ, **simd_env(level)}
-    return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+    serve(frame, {"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()})
 
 
 def main() -> None:
@@ -82,23 +68,9 @@ def main() -> None:
         child(parser.parse_args().disparity_range)
         return
     args = parse_bench_arguments(parser)
-    children = {level: start(level, args.disparity_range) for level in args.levels}
-    machines = {}
-    for level, process in children.items():  # one at a time: compiling two levels at once doubles both
-        assert process.stdout is not None
-        machines[level] = json.loads(process.stdout.readline())
-        print(f"{level}: ready", file=sys.stderr, flush=True)
-    runs: dict[str, list[dict[str, float]]] = {level: [] for level in children}
-    for _ in range(args.repeat):
-        for level, process in children.items():
-            assert process.stdin is not None and process.stdout is not None
-            process.stdin.write("frame\n")
-            process.stdin.flush()
-            runs[level].append(json.loads(process.stdout.readline()))
-    for process in children.values():
-        assert process.stdin is not None
-        process.stdin.close()
-        process.wait()
+    arguments = [__file__, "--child", "--disparity-range", str(args.disparity_range)]
+    children = {level: start(arguments, {**os.environ, **simd_env(level)}) for level in args.levels}
+    machines, runs = frames_in_turn(children, args.repeat)
     names = [name for name, _, _ in PROFILES]
     columns = (
         "level",
