@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.params import StereoParams
+from stereo_depth.core.speckles import SplitSpeckleFilter
 from stereo_depth.core.threads import opencv_threads
 
 
@@ -32,10 +33,10 @@ class Matcher(Protocol):
         ...
 
 
-def fixed_point_to_float(raw: np.ndarray, min_disparity: int) -> np.ndarray:
-    """OpenCV's int16 disparity (x16) to float32 pixels; below min_disparity means invalid."""
-    disparity = raw.astype(np.float32)
-    disparity *= 1.0 / 16.0
+def fixed_point_to_float(raw: np.ndarray, min_disparity: int, out: np.ndarray | None = None) -> np.ndarray:
+    """OpenCV's int16 disparity (x16) to float32 pixels (into `out` when given); below min_disparity means
+    invalid."""
+    disparity: np.ndarray = np.multiply(raw, np.float32(1.0 / 16.0), out=out, dtype=np.float32)
     disparity[raw < min_disparity * 16] = np.nan
     return disparity
 
@@ -101,8 +102,9 @@ def _lower_halves() -> ThreadPoolExecutor:
 
 class Halves:
     """An OpenCV matcher on two cores: the upper and the lower half of the image at once (the lower one
-    on a helper thread), each reaching `overlap` rows into the other, joined, and speckles removed over
-    the whole image as OpenCV does inside `compute`.
+    on a helper thread), each reaching `overlap` rows into the other, then its speckles removed and its
+    disparity converted on the same thread (core/speckles.py: the halves' speckle filters give what one
+    filter over the whole image gives, as OpenCV runs it inside `compute`).
 
     - SGBM and HH aggregate on the calling thread only. Semi-global paths restarted at a half's edge
       agree with the whole-image ones again within STRIP_OVERLAP rows.
@@ -123,26 +125,39 @@ class Halves:
         overlap: int,
         speckle_range: int,
     ) -> None:
-        self._upper, self._lower = build(params, 0), build(params, 0)  # speckles: after joining
+        self._upper, self._lower = build(params, 0), build(params, 0)  # speckles: SplitSpeckleFilter
         self._overlap, self._speckle_range = overlap, speckle_range  # the range in OpenCV's unit for this matcher
         self._params = params
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
-        height = left.shape[0]
-        if height < 4 * self._overlap or cv2.getNumThreads() < 2:
-            raw = self._upper.compute(left, right)
-        else:
-            middle = height // 2
-            start = (middle - self._overlap) & ~1
-            raw = np.empty(left.shape[:2], np.int16)
-            with opencv_threads(1):  # one core per half: BM's own stripes would run two of them on one core
-                lower = _lower_halves().submit(self._lower.compute, left[start:], right[start:])
-                raw[:middle] = self._upper.compute(left[: 2 * middle - start], right[: 2 * middle - start])[:middle]
-                raw[middle:] = lower.result()[middle - start :]
         p = self._params
-        if p.speckle_size > 0:
-            cv2.filterSpeckles(raw, (p.min_disparity - 1) * 16, p.speckle_size, self._speckle_range)
-        return MatchResult(fixed_point_to_float(raw, p.min_disparity))
+        height = left.shape[0]
+        split = height >= 4 * self._overlap and cv2.getNumThreads() >= 2
+        middle = height // 2 if split else height
+        raw = np.empty(left.shape[:2], np.int16)
+        disparity = np.empty(left.shape[:2], np.float32)
+        speckles = SplitSpeckleFilter(raw, middle, (p.min_disparity - 1) * 16, p.speckle_size, self._speckle_range)
+
+        def finish(start: int, stop: int, matched: np.ndarray) -> None:
+            raw[start:stop] = matched
+            speckles.filter_rows(start, stop)
+            fixed_point_to_float(raw[start:stop], p.min_disparity, disparity[start:stop])
+
+        if not split:
+            finish(0, height, self._upper.compute(left, right))
+            return MatchResult(disparity)
+        start = (middle - self._overlap) & ~1
+        with opencv_threads(1):  # one core per half: BM's own stripes would run two of them on one core
+            lower = _lower_halves().submit(
+                lambda: finish(middle, height, self._lower.compute(left[start:], right[start:])[middle - start :])
+            )
+            finish(0, middle, self._upper.compute(left[: 2 * middle - start], right[: 2 * middle - start])[:middle])
+            lower.result()
+        changed = speckles.join()
+        if changed is not None:
+            first, last = changed
+            fixed_point_to_float(raw[first:last], p.min_disparity, disparity[first:last])
+        return MatchResult(disparity)
 
 
 def whole_image(params: StereoParams) -> OpenCVMatcher:
