@@ -253,11 +253,8 @@ def valid_region(disparity: np.ndarray) -> tuple[int, int, int, int]:
     Not OpenCV's getValidDisparityROI: SGBM fills rows and columns outside it, census_sgm fills the left
     border and hole filling anything, so only the frame itself says where its valid pixels are.
     """
-    valid = np.isfinite(disparity)
-    rows, columns = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
-    if rows.size == 0:
-        return 0, 0, 0, 0
-    return int(columns[0]), int(rows[0]), int(columns[-1] - columns[0] + 1), int(rows[-1] - rows[0] + 1)
+    x, y, width, height = cv2.boundingRect(np.isfinite(disparity).view(np.uint8))  # of the non-zero pixels
+    return int(x), int(y), int(width), int(height)
 
 
 def image_outputs(

@@ -402,12 +402,14 @@ def disparity_to_msg(
     """stereo_msgs/DisparityImage as stereo_image_proc users read it.
 
     The image holds d' = x_l - x_r - (cx_l - cx_r), so Z = f * t / d' with no further offset;
-    min/max_disparity are offset the same way, and invalid pixels hold min_disparity - 1.
+    min/max_disparity are offset the same way, and invalid pixels (NaN) hold min_disparity - 1. Valid
+    ones are not below min_disparity - 1 (a reader takes any value below min_disparity as invalid), so
+    one `fmax`, which passes over NaN, puts that value in.
     """
     offset = np.float32(camera.disparity_offset)
     min_d = float(min_disparity) - float(offset)
     image = np.subtract(disparity, offset, dtype=np.float32)
-    image[~np.isfinite(image)] = np.float32(min_d - 1.0)
+    np.fmax(image, np.float32(min_d - 1.0), out=image)
     x, y, w, h = valid_window
     return types.DisparityImage(
         header=header,
