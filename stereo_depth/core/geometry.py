@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
@@ -52,12 +53,17 @@ def disparity_to_depth(
     return d
 
 
-def depth_to_points(depth: np.ndarray, rays: Rays, out: np.ndarray | None = None) -> np.ndarray:
-    """Organized (H, W, 3) float32 XYZ in the left optical frame (x right, y down, z forward); NaN invalid."""
-    h, w = depth.shape
-    if out is None:
-        out = np.empty((h, w, 3), dtype=np.float32)
-    np.multiply(depth, rays.x, out=out[:, :, 0])
-    np.multiply(depth, rays.y, out=out[:, :, 1])
-    out[:, :, 2] = depth
-    return out
+def point_planes(depth: np.ndarray, rays: Rays) -> list[np.ndarray]:
+    """X, Y and Z of every pixel as three (H, W) float32 planes, in the left optical frame (x right,
+    y down, z forward); NaN invalid."""
+    return [
+        np.multiply(depth, rays.x, dtype=np.float32),
+        np.multiply(depth, rays.y, dtype=np.float32),
+        np.ascontiguousarray(depth, np.float32),
+    ]
+
+
+def depth_to_points(depth: np.ndarray, rays: Rays) -> np.ndarray:
+    """Organized (H, W, 3) float32 XYZ: `point_planes` interleaved."""
+    points: np.ndarray = cv2.merge(point_planes(depth, rays))
+    return points
