@@ -181,6 +181,11 @@ def test_cloud_layout_matches_stereo_image_proc(
     np.testing.assert_array_equal(xyz, depth_to_points(depth, rays))
     assert np.isnan(xyz[1, 2]).all() and xyz[2, 1, 1] == np.float32(0.3) * depth[2, 1]
     assert rgb is not None and rgb[0, 0] == 0x00FF0000
+    records = np.frombuffer(bytes(msg.data), np.uint8).reshape(-1, step)  # type: ignore[attr-defined]
+    padding = np.ones(step, bool)
+    for offset in offsets:
+        padding[offset : offset + 4] = False
+    assert not records[:, padding].any()  # the bytes between the fields are zero
 
 
 @pytest.mark.parametrize("avoid_padding", [False, True])
