@@ -31,7 +31,7 @@ from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.frames import disparity_message
-from stereo_depth.messages import CloudBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
+from stereo_depth.messages import MessageBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -69,7 +69,7 @@ def bare_opencv(left: np.ndarray, right: np.ndarray, camera: StereoCamera, match
 
 
 def timed_frame(
-    pipeline: StereoPipeline, messages: tuple[object, object], camera: StereoCamera, buffer: CloudBuffer
+    pipeline: StereoPipeline, messages: tuple[object, object], camera: StereoCamera, buffer: MessageBuffer
 ) -> dict[str, float]:
     """stereo_node's work for a disparity + points2 subscriber, as it does it (publish() not included):
     decode, match, depth, the cloud with the points computed straight into it (its 'points' stage),
@@ -132,7 +132,7 @@ def main() -> None:
         messages = (array_to_image(RCLPY_TYPES, header_msg, left), array_to_image(RCLPY_TYPES, header_msg, right))
         params = {p: make_params(p, {"disparity_range": args.disparity_range}) for p in args.profiles}
         pipelines = {p: StereoPipeline(params[p]) for p in args.profiles}
-        buffers = {p: CloudBuffer() for p in args.profiles}
+        buffers = {p: MessageBuffer() for p in args.profiles}
         bare_matchers = {p: create_matcher(params[p]) for p in args.profiles}
         runs: dict[str, list[dict[str, float]]] = {p: [] for p in args.profiles}
         bare: dict[str, list[float]] = {p: [] for p in args.profiles}

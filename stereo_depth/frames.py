@@ -36,7 +36,7 @@ from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
     DEFAULT_MAX_PIXELS,
-    CloudBuffer,
+    MessageBuffer,
     MessageTypes,
     array_to_image,
     camera_info_from_msg,
@@ -230,9 +230,15 @@ def filter_over_time(
 
 
 def disparity_message(
-    types: MessageTypes, header: Any, disparity: np.ndarray, camera: StereoCamera, params: StereoParams
+    types: MessageTypes,
+    header: Any,
+    disparity: np.ndarray,
+    camera: StereoCamera,
+    params: StereoParams,
+    buffer: MessageBuffer | None = None,
 ) -> Any:
-    """DisparityImage with the frame's real valid window and resolution (1/16 px per downsample step)."""
+    """DisparityImage with the frame's real valid window and resolution (1/16 px per downsample step),
+    its data in `buffer` when given."""
     params = output_params(params)  # the disparity's own size and range (downsample_output)
     return disparity_to_msg(
         types,
@@ -243,6 +249,7 @@ def disparity_message(
         params.disparity_range,
         valid_region(disparity),
         delta_d=params.downsample / 16.0,
+        buffer=buffer,
     )
 
 
@@ -258,10 +265,16 @@ def valid_region(disparity: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def image_outputs(
-    types: MessageTypes, header: Any, result: StereoResult, params: StereoParams, wanted: Collection[str]
+    types: MessageTypes,
+    header: Any,
+    result: StereoResult,
+    params: StereoParams,
+    wanted: Collection[str],
+    disparity_buffer: MessageBuffer | None = None,
 ) -> dict[str, Any]:
     """The messages matching gives, by output name: those in `wanted` that this frame has (the colour
-    image needs a colour input, confidence a matcher that gives one)."""
+    image needs a colour input, confidence a matcher that gives one); the disparity's data in
+    `disparity_buffer` when given."""
     assert result.camera is not None
     arrays: dict[str, tuple[np.ndarray | None, str | None]] = {
         "left/image_rect": (result.left_rect, None),
@@ -273,7 +286,7 @@ def image_outputs(
         if name not in wanted:
             continue
         if name == "disparity":
-            messages[name] = disparity_message(types, header, result.disparity, result.camera, params)
+            messages[name] = disparity_message(types, header, result.disparity, result.camera, params, disparity_buffer)
             continue
         pixels, encoding = arrays[name]
         if pixels is not None:
@@ -344,14 +357,15 @@ class CloudRate:
 
 class OutputState:
     """What one stream of frames keeps between frames for its outputs: the rectified mask, the
-    organized cloud's bytes, the stamp of the last cloud (points_max_rate) and the temporal filter's
-    history (touched only where frames are in stamp order: `filter_over_time`)."""
+    organized cloud's and the disparity's bytes, the stamp of the last cloud (points_max_rate) and the
+    temporal filter's history (touched only where frames are in stamp order: `filter_over_time`)."""
 
     def __init__(self) -> None:
         self.temporal = TemporalFilter()
         self.masks = RectifiedMasks()
-        self.cloud_buffer = CloudBuffer()
-        self.clearing_buffer = CloudBuffer()  # points2_clearing's own: points2 may still hold the other
+        self.disparity_buffer = MessageBuffer()  # filled and published under the node's output order lock
+        self.cloud_buffer = MessageBuffer()
+        self.clearing_buffer = MessageBuffer()  # points2_clearing's own: points2 may still hold the other
         self.cloud_rate = CloudRate()
 
 
@@ -531,7 +545,7 @@ def frame_outputs(
     needs): `send_cloud({}, None)` at once.
     """
     filter_over_time(state.temporal, frame, result, output)
-    send_images(image_outputs(types, frame.header, result, params, wanted))
+    send_images(image_outputs(types, frame.header, result, params, wanted, state.disparity_buffer))
     if frame.camera.no_depth_reason is not None:  # no baseline: disparity only (the caller warns once)
         send_cloud({}, None)
         return

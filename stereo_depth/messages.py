@@ -335,13 +335,18 @@ def encoding_for(array_: np.ndarray) -> str:
 
 
 def array_to_image(types: MessageTypes, header: Any, pixels: np.ndarray, encoding: str | None = None) -> Any:
-    encoding = encoding or encoding_for(pixels)
     height, width = pixels.shape[:2]
     step = width * pixels.itemsize * (pixels.shape[2] if pixels.ndim == 3 else 1)
+    return _image_with_data(types, header, _bytes(types, pixels), height, width, encoding or encoding_for(pixels), step)
+
+
+def _image_with_data(
+    types: MessageTypes, header: Any, data: Any, height: int, width: int, encoding: str, step: int
+) -> Any:
     return _with_data(
         types,
         types.Image,
-        _bytes(types, pixels),
+        data,
         header=header,
         height=height,
         width=width,
@@ -398,8 +403,10 @@ def disparity_to_msg(
     disparity_range: int,
     valid_window: tuple[int, int, int, int],
     delta_d: float = 1.0 / 16.0,
+    buffer: MessageBuffer | None = None,
 ) -> Any:
-    """stereo_msgs/DisparityImage as stereo_image_proc users read it.
+    """stereo_msgs/DisparityImage as stereo_image_proc users read it (its image data in `buffer`'s bytes
+    when given, see MessageBuffer).
 
     The image holds d' = x_l - x_r - (cx_l - cx_r), so Z = f * t / d' with no further offset;
     min/max_disparity are offset the same way, and invalid pixels (NaN) hold min_disparity - 1. Valid
@@ -408,12 +415,15 @@ def disparity_to_msg(
     """
     offset = np.float32(camera.disparity_offset)
     min_d = float(min_disparity) - float(offset)
-    image = np.subtract(disparity, offset, dtype=np.float32)
+    height, width = disparity.shape
+    data = (buffer or MessageBuffer()).get(types, ("32FC1", height, width), height * width * 4)
+    image = np.frombuffer(data, np.float32).reshape(height, width)  # computed straight into the message
+    np.subtract(disparity, offset, out=image, dtype=np.float32)
     np.fmax(image, np.float32(min_d - 1.0), out=image)
     x, y, w, h = valid_window
     return types.DisparityImage(
         header=header,
-        image=array_to_image(types, header, image, "32FC1"),
+        image=_image_with_data(types, header, data, height, width, "32FC1", width * 4),
         f=float(camera.fx),
         t=float(camera.baseline),
         valid_window=types.RegionOfInterest(x_offset=x, y_offset=y, height=h, width=w, do_rectify=False),
@@ -462,13 +472,15 @@ def pack_rgb(bgr: np.ndarray) -> np.ndarray:
     return (r << 16) | (g << 8) | b
 
 
-class CloudBuffer:
-    """The bytes of the last cloud, handed to the next cloud of the same size and layout.
+class MessageBuffer:
+    """The data bytes of a publisher's last message, handed to its next one of the same size and layout.
 
-    A VGA cloud is 10 MB: allocating and zeroing it per frame costs more than packing it. rclpy's
-    `publish()` serializes before it returns, so a node may reuse the buffer for its next frame; keep
-    one per publisher and never reuse it while a message built on it is still to be published.
-    Every byte, padding included, is written for each cloud, so a reused buffer holds what a fresh one would.
+    A VGA cloud is 10 MB, a VGA disparity 1.2 MB: allocating them per frame costs more than filling
+    them, and building the data elsewhere costs a copy into the message. rclpy's `publish()` serializes
+    before it returns (and so does the bag writer), so a node may reuse the buffer for its next frame;
+    keep one per publisher and never reuse it while a message built on it is still to be published.
+    Every byte, padding included, is written for each message, so a reused buffer holds what a fresh
+    one would.
     """
 
     def __init__(self) -> None:
@@ -489,7 +501,7 @@ def depth_to_cloud(
     rays: Rays,
     color: np.ndarray | None = None,
     avoid_padding: bool = False,
-    buffer: CloudBuffer | None = None,
+    buffer: MessageBuffer | None = None,
     *,
     organized: bool = True,
     voxel_size: float = 0.0,
@@ -501,12 +513,12 @@ def depth_to_cloud(
     (REP 117's dense cloud: height 1, is_dense true), thinned to one point per `voxel_size` voxel when
     that is > 0 (the members' centroid, the colour of one of them).
     `color` is BGR or grey (uint8); `buffer` lends the bytes of the previous organized cloud (see
-    CloudBuffer).
+    MessageBuffer).
     """
     fields, point_step = cloud_layout(color is not None, avoid_padding)
     height, width = depth.shape
     key = (height, width, tuple(fields), point_step)
-    data = (buffer or CloudBuffer()).get(types, key, height * width * point_step)
+    data = (buffer or MessageBuffer()).get(types, key, height * width * point_step)
     records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
     _fill_records(records, fields, depth, rays, color)
     if not organized:  # the valid points, copied out of the organized records (faster than gathering)

@@ -16,7 +16,7 @@ from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.errors import ImageError
 from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import (
-    CloudBuffer,
+    MessageBuffer,
     array_to_image,
     camera_info_from_msg,
     camera_info_to_msg,
@@ -148,6 +148,19 @@ def test_disparity_message_is_offset_adjusted_like_stereo_image_proc(camera: Ste
     assert msg.f * msg.t / back[0, 0] == pytest.approx(0.160 * 935.0 / (20.0 + 50.0))  # type: ignore[attr-defined]
 
 
+def test_disparity_in_a_reused_buffer_is_the_disparity_in_a_fresh_one(camera: StereoCamera) -> None:
+    """Nodes and `process` compute the DisparityImage's pixels straight into a buffer reused frame after
+    frame: each message must serialize as one built fresh, invalid pixels included."""
+    scene = load_scene(SCENES / "artl")
+    assert scene.gt is not None
+    buffer = MessageBuffer()
+    for disparity in (scene.gt, scene.gt[:, ::-1].copy()):  # the second frame reuses the buffer
+        assert np.isnan(disparity).any()
+        args = (T, HEADER, disparity, camera, 0, 64, (0, 0, 1, 1))
+        fresh = serialize(disparity_to_msg(*args))
+        assert bytes(serialize(disparity_to_msg(*args, buffer=buffer))) == bytes(fresh)
+
+
 def test_disparity_without_encoding_reads_as_32fc1_when_it_fits(camera: StereoCamera) -> None:
     """stereo_image_proc reads a DisparityImage as float whatever its encoding; its point cloud test fixture
     sets none. Bytes that fit 4-byte pixels read as 32FC1; others are refused with the fix, never guessed."""
@@ -198,7 +211,7 @@ def test_cloud_in_a_reused_buffer_is_the_cloud_in_a_fresh_one_byte_for_byte(
     scene = load_scene(SCENES / "artl")
     color = cv2.cvtColor(scene.left, cv2.COLOR_BGR2GRAY) if grey else scene.left
     rays = Rays.for_camera(camera)
-    buffer = CloudBuffer()
+    buffer = MessageBuffer()
     assert scene.gt is not None
     for disparity in (scene.gt, scene.gt[:, ::-1].copy()):  # the second frame reuses the buffer
         depth = disparity_to_depth(disparity, camera)

@@ -11,6 +11,7 @@ from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.frames import filter_over_time, image_outputs
+from stereo_depth.messages import MessageBuffer
 from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS, Settings
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
@@ -34,6 +35,7 @@ class DisparityNode(StereoIONode):
     def open_outputs(self) -> None:
         self._disparity = self.output(DisparityImage, "disparity")
         self._temporal = TemporalFilter()  # frames come one at a time, in the order they were matched
+        self._buffer = MessageBuffer()  # the disparity's bytes, reused: each message is published before the next
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         assert settings.stereo is not None
@@ -44,7 +46,9 @@ class DisparityNode(StereoIONode):
         result = self.match(frame)
         filter_over_time(self._temporal, frame, result, settings.output)
         start = time.perf_counter()
-        for message in image_outputs(RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",)).values():
+        for message in image_outputs(
+            RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",), self._buffer
+        ).values():
             self._disparity.publish(message)
             self.published("disparity")
         timed(stages, "publish", start)
