@@ -548,23 +548,22 @@ def _fill_records(
     """Every point's x, y, z and rgb, padding zero, written into the (H, W, point_step) records in one
     pass over them (cv2.merge): 1.5x sooner than a strided write per field."""
     height, width, point_step = records.shape
-    zero = np.zeros((height, width), np.float32)
-    planes = [zero] * (point_step // 4)  # float32 words of a record
-    planes[0:3] = point_planes(depth, rays)
+    words = dict(enumerate(point_planes(depth, rays)))  # float32 word of a record -> its plane
     if color is not None:
-        planes[fields[3][1] // 4] = _packed(color).view(np.float32)
-    cv2.merge(planes, dst=records.view(np.float32).reshape(height, width, len(planes)))
+        words[fields[3][1] // 4] = _packed(color).view(np.float32)
+    count = point_step // 4
+    if len(words) < count:  # padding words: zero
+        zero = np.zeros((height, width), np.float32)
+        words.update((i, zero) for i in range(count) if i not in words)
+    cv2.merge([words[i] for i in range(count)], dst=records.view(np.float32).reshape(height, width, count))
 
 
-def _packed(color: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) PCL rgb of a BGR or grey (r = g = b) image, into `out` when given."""
-    if out is None:
-        out = np.empty(color.shape[:2], np.uint32)
+def _packed(color: np.ndarray) -> np.ndarray:
+    """(H, W) PCL rgb of a BGR or grey (r = g = b) image."""
     if color.ndim == 2:
-        np.multiply(color, np.uint32(0x010101), out=out, dtype=np.uint32)
-    else:
-        out[...] = pack_rgb(color)
-    return out
+        grey: np.ndarray = np.multiply(color, np.uint32(0x010101), dtype=np.uint32)
+        return grey
+    return pack_rgb(color)
 
 
 def _rgb_view(records: np.ndarray, fields: list[tuple[str, int]]) -> np.ndarray:
