@@ -189,6 +189,8 @@ def performance(run: Run) -> bool:
     ok = run.bench("pipeline_stages.py", quick=("--repeat", "2")) and ok
     print("\nThe census core against SGBM 3-way at three SIMD levels, interleaved (`bench/simd_match_ratio.py`):\n")
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
+    print("\nBM after the cores sat idle (`bench/idle_gap.py`):\n")
+    ok = run.bench("idle_gap.py", quick=("--frames", "10", "--rounds", "1")) and ok
     print("\nPage faults and time per frame, freed memory kept or not (`bench/page_faults.py`):\n")
     ok = run.bench("page_faults.py", quick=("--repeat", "2")) and ok
     print("\nOffline, `stereo-depth process` against a bare loop (`bench/offline_process.py`):\n")
