@@ -458,6 +458,9 @@ def summarize(
     }
     row["node_inputs"] = {k: v for k, v in diagnostics.items() if "camera_info" in k and ("lost" in k or "used" in k)}
     row["bottleneck"] = diagnostics.get("bottleneck", "-")
+    row["images_in_dds_ms"] = {  # median / max: a max of 5-10 ms are images DDS lost and repaired
+        k.split()[0].split("/")[-2]: v for k, v in diagnostics.items() if "image_raw time in DDS" in k
+    }
     row["monitor_cpu_s"] = monitor["cpu_s"]
     return row
 
@@ -650,11 +653,15 @@ def main() -> None:
     print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
     for r in rows:
         print(f"{r['case']:26s}{r['profile']:>6s}  " + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
-    print("\nthe node's camera_info accounting and its bottleneck line (diagnostics)")
+    print("\nthe node's camera_info accounting, its images' time in DDS and its bottleneck line (diagnostics)")
     for r in rows:
         if r["node_inputs"]:
             counts = ", ".join(f"{k.split('/')[-1]} {v}" for k, v in r["node_inputs"].items())
-            print(f"{r['case']:26s}{r['profile']:>6s}  {counts}; bottleneck: {r['bottleneck']}")
+            in_dds = ", ".join(f"{camera} {v}" for camera, v in r.get("images_in_dds_ms", {}).items())
+            print(
+                f"{r['case']:26s}{r['profile']:>6s}  {counts}; images in DDS ms (median / max): {in_dds or '-'}; "
+                f"bottleneck: {r['bottleneck']}"
+            )
     if args.anchor is not None:
         print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
     elif args.anchor_summary.exists():

@@ -477,6 +477,9 @@ def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: 
     ):
         assert key in values, key
     assert float(values["disparity age at publish (ms)"]) > 0 and float(values["points2 age at publish (ms)"]) > 0
+    # from the DDS sample info: the harness's write to the node's reader, one machine, one clock
+    in_dds = [float(v) for v in values["/live/left/image_raw time in DDS (ms, median / max)"].split(" / ")]
+    assert 0.0 <= in_dds[0] <= in_dds[1] < 60_000.0, in_dds
     good = next(_stamps)
     live["inputs"].publish(artl, good)
     live["disparity"].wait_stamp(good)

@@ -11,6 +11,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from statistics import median
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -76,6 +77,7 @@ class NodeDiagnostics:
         self._stage_ms: dict[str, deque[float]] = {}  # the last RECENT_FRAMES frames
         self._latency_s: deque[float] = deque(maxlen=RECENT_FRAMES)
         self._age_s: dict[str, deque[float]] = {}  # per output: its age at publish, from the input's receipt
+        self._in_dds_ms: dict[str, deque[float]] = {}  # per input: its DDS receipt minus its writer's send time
         self.dropped = 0  # complete sets replaced by a newer one before the worker got to them
         self.dropped_late = 0  # of those, sets that could not be out within max_latency_ms
         self.dropped_clouds = 0  # disparities published whose depth / points2 a newer frame replaced
@@ -96,6 +98,12 @@ class NodeDiagnostics:
         with self._lock:
             self.inputs[topic].add(stamp_ns, now)
             self._last_arrival[topic] = now
+
+    def input_in_dds(self, topic: str, ms: float) -> None:
+        """How long a message took from its publisher's write to this node's DDS reader (both clocks of
+        the message's DDS sample info: between machines their offset is in it)."""
+        with self._lock:
+            self._in_dds_ms.setdefault(topic, deque(maxlen=RECENT_FRAMES)).append(ms)
 
     def sync_changed(self, change: SyncCounters) -> None:
         """What one message did to the synchronizer (`SyncCounters.since`), per input topic."""
@@ -218,6 +226,9 @@ class NodeDiagnostics:
             values.append((f"{topic} missing (recent window)", str(monitor.missing())))
             values.append((f"{topic} lost (DDS)", str(monitor.lost_reported)))
             values.append((f"{topic} unmatched", str(monitor.unmatched)))
+            in_dds = self._in_dds_ms.get(topic)
+            if in_dds:
+                values.append((f"{topic} time in DDS (ms, median / max)", f"{median(in_dds):.1f} / {max(in_dds):.1f}"))
             if monitor.substituted or monitor.late:
                 values.append((f"{topic} missing, last one used", str(monitor.substituted)))
                 values.append((f"{topic} late (after its set)", str(monitor.late)))

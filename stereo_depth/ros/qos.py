@@ -80,7 +80,7 @@ class AdaptiveSubscription:
         node: Node,
         msg_type: Any,
         topic: str,
-        callback: Callable[[Any], None],
+        callback: Callable[..., None],  # (message, its DDS sample info): rclpy passes both to a 2-argument one
         *,
         policy: str,
         depth: int,

@@ -327,9 +327,12 @@ class StereoIONode(Node):
             same_calibration=same_calibration,
         )
 
-    def _on_message(self, index: int, msg: Any) -> None:
+    def _on_message(self, index: int, msg: Any, sample: dict[str, int] | None) -> None:
+        """A message of input `index`, with its DDS sample info (None for a calibration file's)."""
         stamp = stamp_to_ns(msg.header.stamp)
         topic = self.topics[index]
+        if sample is not None:
+            self.diagnostics.input_in_dds(topic, (sample["received_timestamp"] - sample["source_timestamp"]) / 1e6)
         if stamp == 0:
             self.problems.skipped(
                 f"{topic}: header.stamp is zero, message skipped; the driver must stamp every image and "
@@ -347,7 +350,7 @@ class StereoIONode(Node):
         self._pair(lambda sync: sync.add(index, stamp, msg), topic, stamp)
         for info_index, (_, image_index, info) in self._info_files.items():
             if image_index == index:  # the file's calibration, stamped as this image, takes the topic's place
-                self._on_message(info_index, camera_info_to_msg(RCLPY_TYPES, msg.header, info))
+                self._on_message(info_index, camera_info_to_msg(RCLPY_TYPES, msg.header, info), None)
 
     def _pair(self, step: Callable[[Synchronizer], list[tuple[int, tuple[Any, ...]]]], topic: str, stamp: int) -> None:
         """One synchronizer step; its counters go to diagnostics per topic, the sets to the worker."""
