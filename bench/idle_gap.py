@@ -6,7 +6,8 @@ frame; and with the same gap spent spinning, so the machine never idles. Prints 
 median ms per frame of each and its ratio to frame after frame. Where the clock follows the load (a
 utilization-driven frequency governor, on the host of a VM or on the machine itself) the gap row slows
 down as the pattern goes on and the spinning row does not; without that effect all three agree. The
-slowdown builds up over frames: measured here 1.09x with 10 frames a round, 1.23x with 20, 1.95x with 60.
+slowdown builds up over frames: 1.09x with 10 frames a round, 1.23x with 20, 1.95x with 60 on the
+README's 2-core Xeon VM (AVX-512).
 
     .venv/bin/python bench/idle_gap.py [--gap-ms 20] [--frames 60] [--rounds 3]
 """
