@@ -452,6 +452,9 @@ def test_every_publish_order_and_a_lagging_right_camera_pair_every_set(live: dic
 
 
 def test_bad_input_is_skipped_reported_and_survived(live: dict[str, Any], artl: Pair) -> None:
+    before = next(_stamps)  # a good frame first: the report then has stage times, whichever test ran before
+    live["inputs"].publish(artl, before)
+    live["disparity"].wait_stamp(before)
     bad = next(_stamps)
     live["inputs"].publish(artl, bad, left_encoding="yuv422")
 
