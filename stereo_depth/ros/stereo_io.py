@@ -331,8 +331,8 @@ class StereoIONode(Node):
         """A message of input `index`, with its DDS sample info (None for a calibration file's)."""
         stamp = stamp_to_ns(msg.header.stamp)
         topic = self.topics[index]
-        sent, received = (sample.get(k, 0) for k in ("source_timestamp", "received_timestamp")) if sample else (0, 0)
-        if sent and received:  # 0: not given (a calibration file's, or an RMW that does not stamp samples)
+        sent, received = (sample or {}).get("source_timestamp"), (sample or {}).get("received_timestamp")
+        if sent and received:  # None or 0: a calibration file's, or an RMW that does not stamp samples
             self.diagnostics.input_in_dds(topic, (received - sent) / 1e6)
         if stamp == 0:
             self.problems.skipped(
