@@ -15,8 +15,9 @@ the same way, on the same kind of frames:
     node CPU = utime + stime of the stereo_node process over the active window (100% = 1 core);
   * bare_vga_30: no node; the publisher sends messages of the disparity's and the cloud's sizes at 30 Hz
     straight to the monitor: what bare rclpy reaches for such messages in the same run.
-A few warm-up frames (not counted) go first, so one-off start-up work (imports, numba cache, first
-allocation) is not billed to the stream. Every process it starts is stopped by PID.
+A few warm-up frames (not counted) go first, so one-off start-up work (imports, loading numba's cache,
+first allocation) is not billed to the stream; numba's kernels are compiled before the first case
+(`stereo-depth compile`). Every process it starts is stopped by PID.
 
 `--anchor` runs the C++ anchor (its run.sh: ROS 1 stereo_image_proc, rosbag play, a roscpp monitor; it
 installs Debian's ROS 1 packages on first use) once after each of our runs of a case it has, so the two
@@ -619,6 +620,9 @@ def main() -> None:
         f"profiles: {' and '.join(args.profiles)}",
         flush=True,
     )
+    # numba's kernels compiled (or loaded) now: on a fresh machine, compiling on the node's first frame takes
+    # longer than a whole case's stream (15 s for `quality` on 2 cores)
+    subprocess.run([sys.executable, "-m", "stereo_depth.cli", "compile"], check=True, stdout=subprocess.DEVNULL)
     all_runs: list[dict[str, Any]] = []
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {(n, p): [] for p in args.profiles for n in args.cases}
     anchor_runs: dict[str, list[dict[str, Any]]] = {}
