@@ -1,13 +1,21 @@
-"""Does a match run slower after the cores sat idle? A node at 30 Hz idles between frames.
+"""Does a match run slower after the cores sat idle, or after the previous frame's cloud? A node at 30 Hz
+idles between frames.
 
-The same BM matcher (stereo_image_proc's parameters, both halves at once as stereo_node runs it) on the
-anchor's VGA frames, in interleaved rounds: frame after frame; with an idle gap (sleep) before each
-frame; and with the same gap spent spinning, so the machine never idles. Prints the
-median ms per frame of each and its ratio to frame after frame. Where the clock follows the load (a
-utilization-driven frequency governor, on the host of a VM or on the machine itself) the gap row slows
-down as the pattern goes on and the spinning row does not; without that effect all three agree. The
-slowdown builds up over frames: 1.09x with 10 frames a round, 1.23x with 20, 1.95x with 60 on the
-README's 2-core Xeon VM (AVX-512).
+stereo_node's first stage (stereo_image_proc's parameters: BM on both halves at once) on the anchor's
+VGA frames, in interleaved rounds (each starting one mode later than the one before), with before each
+frame:
+  * nothing (frame after frame);
+  * an idle gap (sleep);
+  * the same gap spent spinning, so the machine never idles;
+  * the same gap after the previous frame's cloud stage, started on a second thread as the node starts
+    it: depth, then points2 with 32-byte (the default) or 16-byte points written into its reused buffer
+    and serialized as rclpy's publish() serializes it (the cloud stage ends within the gap).
+Prints the median ms per frame of each and its ratio to frame after frame. Where the clock follows the
+load (a utilization-driven frequency governor, on the host of a VM or on the machine itself) the gap
+rows slow down as the pattern goes on and the spinning row does not; without that effect all agree. If
+the cloud's ~10 MB of copies evicted what the next match needs, its rows would be slower than the idle
+gap's. The slowdown builds up over frames: 1.09x with 10 frames a round, 1.23x with 20, 1.95x with 60 on
+the README's 2-core Xeon VM (AVX-512).
 
     .venv/bin/python bench/idle_gap.py [--gap-ms 20] [--frames 60] [--rounds 3]
 """
@@ -18,14 +26,22 @@ import argparse
 import statistics
 import sys
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
-from stereo_depth.core.matching import create_bm
+from rclpy.serialization import serialize_message
+
 from stereo_depth.core.params import make_params
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult
+from stereo_depth.messages import MessageBuffer, depth_to_cloud, make_header
+from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from anchor_frames import frames
+from anchor_frames import FRAME_ID, camera_infos, frames
 from markdown_table import parse_bench_arguments, table_header, table_row, times
+
+CLOUD_MODES = {"idle gap after a 32-byte cloud": False, "idle gap after a 16-byte cloud": True}  # avoid_padding
+MODES = ("frame after frame", "idle gap", "gap spent spinning", *CLOUD_MODES)
 
 
 def spin(seconds: float) -> None:
@@ -34,11 +50,41 @@ def spin(seconds: float) -> None:
         pass
 
 
-def gap(mode: str, seconds: float) -> None:
-    if mode == "idle gap":
-        time.sleep(seconds)
-    elif mode == "gap spent spinning":
+class CloudStage:
+    """The node's second stage for one frame, on a thread of its own: depth and points2, serialized."""
+
+    def __init__(self, pipeline: StereoPipeline) -> None:
+        self._pipeline = pipeline
+        self._thread = ThreadPoolExecutor(max_workers=1)
+        self._buffers = {avoid_padding: MessageBuffer() for avoid_padding in CLOUD_MODES.values()}
+
+    def start(self, result: StereoResult, avoid_padding: bool) -> Future[None]:
+        return self._thread.submit(self._run, result, avoid_padding)
+
+    def _run(self, result: StereoResult, avoid_padding: bool) -> None:
+        assert result.camera is not None
+        self._pipeline.add_geometry(result, want_points=False)
+        assert result.depth is not None
+        rays = self._pipeline.rays_for(result.camera)
+        header = make_header(RCLPY_TYPES, 0, FRAME_ID)
+        buffer = self._buffers[avoid_padding]
+        cloud = depth_to_cloud(RCLPY_TYPES, header, result.depth, rays, result.left_rect, avoid_padding, buffer)
+        serialize_message(cloud)
+
+
+def spend_gap(mode: str, seconds: float, clouds: CloudStage, result: StereoResult | None) -> None:
+    """The `seconds` before a frame as `mode` spends them; `result`: the previous frame's match, if any."""
+    if mode == "frame after frame":
+        return
+    if mode == "gap spent spinning":
         spin(seconds)
+        return
+    stage: Future[None] | None = None
+    if mode in CLOUD_MODES and result is not None:
+        stage = clouds.start(result, CLOUD_MODES[mode])
+    time.sleep(seconds)
+    if stage is not None:
+        stage.result()  # ends within the gap: the next match has the cores to itself
 
 
 def main() -> None:
@@ -47,26 +93,29 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=60, help="frames per round and mode")
     parser.add_argument("--rounds", type=int, default=3)
     args = parse_bench_arguments(parser)
-    matcher = create_bm(make_params("stereo_image_proc"))
+    gap_s = args.gap_ms / 1000.0
+    pipeline = StereoPipeline(make_params("stereo_image_proc"))
+    camera = pipeline.camera_for(*camera_infos(640, 480))
+    clouds = CloudStage(pipeline)
     pairs = list(frames(640, 480, 20))
-    modes = ("frame after frame", "idle gap", "gap spent spinning")
-    ms: dict[str, list[float]] = {mode: [] for mode in modes}
-    for _ in range(args.rounds):
-        for mode in modes:
+    ms: dict[str, list[float]] = {mode: [] for mode in MODES}
+    for round_ in range(args.rounds):
+        for mode in MODES[round_ % len(MODES) :] + MODES[: round_ % len(MODES)]:  # each round starts one later
+            result = None
             for i in range(args.frames):
-                gap(mode, args.gap_ms / 1000.0)
+                spend_gap(mode, gap_s, clouds, result)
                 left, right = pairs[i % len(pairs)]
                 start = time.perf_counter()
-                matcher.compute(left, right)
+                result = pipeline.match(left, right, camera)
                 ms[mode].append((time.perf_counter() - start) * 1000.0)
-    baseline = statistics.median(ms[modes[0]])
+    baseline = statistics.median(ms[MODES[0]])
     print(f"BM 640x480, 64 disparities, window 15; gap {args.gap_ms:g} ms; {args.rounds} rounds x {args.frames} frames")
     if args.markdown:
         print(table_header(("before each frame", "ms per frame (median)", "vs frame after frame")))
-    for mode in modes:
+    for mode in MODES:
         median = statistics.median(ms[mode])
         cells = (mode, f"{median:.2f}", times(median / baseline))
-        print(table_row(cells) if args.markdown else f"{cells[0]:28s} {cells[1]:>6s} ms  {cells[2]}")
+        print(table_row(cells) if args.markdown else f"{cells[0]:32s} {cells[1]:>6s} ms  {cells[2]}")
 
 
 if __name__ == "__main__":
