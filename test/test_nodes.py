@@ -520,6 +520,20 @@ def test_signal_ends_every_node_cleanly(
         stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
 
 
+def test_a_census_node_loads_its_core_before_it_subscribes_its_inputs(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """profile:=quality: numba's machine code is loaded at start (compiled first on a fresh install:
+    ~30 s), before any input is subscribed, so no frame waits for it; the log says where the time went."""
+    process = NodeProcess("stereo_node", "/census_start", ros_env, tmp_path, ["-p", "profile:=quality"])
+    try:
+        wait_until(lambda: "ready: inputs" in process.output() or process.process.poll() is not None, "ready", 300.0)
+    finally:
+        stop_all([process])
+    lines = process.output().splitlines()
+    loaded = [i for i, line in enumerate(lines) if "census_sgm core ready in" in line]
+    ready = [i for i, line in enumerate(lines) if "ready: inputs" in line]
+    assert len(loaded) == 1 and len(ready) == 1 and loaded[0] < ready[0], process.output()
+
+
 def test_nodes_that_do_not_come_up_are_stopped_not_left_to_answer_a_later_run(
     ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
 ) -> None:

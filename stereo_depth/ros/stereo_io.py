@@ -220,6 +220,23 @@ class StereoIONode(Node):
         self._worker.budget_s = settings.options.max_latency_ms / 1000.0
         if settings.output.temporal_filter:
             compile_kernels()  # the temporal filter's, now rather than on the first frame
+        if settings.stereo is not None and settings.stereo.matcher == "census_sgm":
+            self._load_census_core()
+
+    def _load_census_core(self) -> None:
+        """The census core's machine code now, before any input is subscribed, rather than on the first
+        frame: numba loads it from its cache in about a second, or compiles it first (about 30 s) on the
+        first start after installing, while frames would wait. A matcher switched to at run time still
+        loads on its first frame."""
+        from stereo_depth.core.census_sgm import compile_kernels as load_census_core  # numba: census nodes only
+
+        self.get_logger().info(
+            "census_sgm core: loading its machine code (compiled on the first start after installing, "
+            "about 30 s; `stereo-depth compile` does that ahead)"
+        )
+        start = time.perf_counter()
+        cache = load_census_core()
+        self.get_logger().info(f"census_sgm core ready in {time.perf_counter() - start:.1f} s (numba cache: {cache})")
 
     @contextmanager
     def outputs_in_order(self) -> Iterator[bool]:
