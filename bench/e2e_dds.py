@@ -32,6 +32,7 @@ stereo_depth/ros/transport.py).
     .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
     .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
     .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
+    .venv/bin/python bench/e2e_dds.py --timeline --cases bm_vga_30_disparity_only   # where the latency goes
     .venv/bin/python bench/e2e_dds.py --anchor --repeats 3 --profiles none all \
         --cases bm_vga_30 bm_vga_30_disparity_only     # the C++ chain interleaved with ours
 """
@@ -39,6 +40,7 @@ stereo_depth/ros/transport.py).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -59,6 +61,7 @@ from stereo_depth.machine import print_machine
 from stereo_depth.ros.transport import PROFILE_VARIABLES
 
 REPO = Path(__file__).resolve().parents[1]
+BENCH = Path(__file__).resolve().parent
 TICK = os.sysconf("SC_CLK_TCK")
 NAMESPACE = "/e2e_dds"  # not /stereo, which test_replay and most launch files use
 FIRST_STAMP_NS = 1_700_000_000 * 10**9
@@ -390,7 +393,12 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool)
     label = f"{case.name}{'+profile' if profile else ''}"
     me = [sys.executable, str(Path(__file__).resolve())]
     monitor_out, sent_out = workdir / f"{label}.monitor.json", workdir / f"{label}.sent.json"
-    node_cmd = [sys.executable, "-m", args.node_module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
+    timeline_out = workdir / f"{label}.timeline.json"
+    if args.timeline:  # bench/timeline_node.py in stereo_node's place
+        env.update(PYTHONPATH=os.pathsep.join([str(BENCH), env.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+        env["STEREO_DEPTH_TIMELINE"] = str(timeline_out)
+    module = "timeline_node" if args.timeline else args.node_module
+    node_cmd = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     for param in (*case.params, *args.param):
         node_cmd += ["-p", param]
     node = None if case.bare else start(node_cmd, env, workdir / f"{label}.node.log")
@@ -426,9 +434,54 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool)
         stop(monitor)
         stop(node)
     sent = {int(s): t for s, t in json.loads(sent_out.read_text()).items()}
-    row = summarize(case, args.frames, json.loads(monitor_out.read_text()), samples, sent)
+    monitor_records = json.loads(monitor_out.read_text())
+    row = summarize(case, args.frames, monitor_records, samples, sent)
     row["profile"] = "all" if profile else "none"
+    if args.timeline:
+        row["timeline_ms"] = timeline_breakdown(json.loads(timeline_out.read_text()), monitor_records["records"])
     return row
+
+
+TIMELINE_STEPS = (
+    "monitor's left image -> node's last input in DDS",
+    "last input: DDS -> its callback",
+    "its callback (and any still running)",
+    "callbacks -> worker",
+    "worker -> publish disparity",
+    "publish disparity",
+    "published -> monitor",
+    "monitor's left image -> monitor's disparity",
+)
+
+
+def timeline_breakdown(
+    events: dict[str, dict[str, int]], records: dict[str, list[tuple[int, int]]]
+) -> dict[str, float]:
+    """Medians (ms) of each step of a disparity's way, over the frames whose disparity the monitor got:
+    the node's events (bench/timeline_node.py) and the monitor's receipts share the system clock."""
+    left, disparity = dict(records["in"]), dict(records["disparity"])  # (stamp, receipt) pairs
+    steps: dict[str, list[float]] = {step: [] for step in TIMELINE_STEPS}
+    for key, event in events.items():
+        stamp = int(key)
+        inputs = [i for i in range(4) if {f"dds {i}", f"callback {i}", f"callback end {i}"} <= event.keys()]
+        seen = stamp in disparity and stamp in left and "published disparity" in event
+        if stamp < FIRST_STAMP_NS or not seen or not inputs:  # warm-up frames, or a frame dropped on the way
+            continue
+        last = max(inputs, key=lambda i: event[f"dds {i}"])
+        times = (
+            left[stamp],
+            event[f"dds {last}"],
+            event[f"callback {last}"],
+            max(event[f"callback end {i}"] for i in inputs),
+            event["worker"],
+            event["publish disparity"],
+            event["published disparity"],
+            disparity[stamp],
+        )
+        for step, (start, end) in zip(TIMELINE_STEPS[:-1], itertools.pairwise(times), strict=True):
+            steps[step].append((end - start) / 1e6)
+        steps[TIMELINE_STEPS[-1]].append((disparity[stamp] - left[stamp]) / 1e6)
+    return {step: statistics.median(values) for step, values in steps.items() if values}
 
 
 def summarize(
@@ -595,6 +648,11 @@ def main() -> None:
         default=Path("/tmp/sip_anchor/summary.json"),
         help="without --anchor: an earlier anchor summary.json, printed side by side when it exists",
     )
+    parser.add_argument(
+        "--timeline",
+        action="store_true",
+        help="run bench/timeline_node.py in stereo_node's place and print where the disparity's latency goes",
+    )
     parser.add_argument("--json", type=Path, help="write every run's figures here")
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
     args = parser.parse_args()
@@ -666,6 +724,12 @@ def main() -> None:
                 f"{r['case']:26s}{r['profile']:>6s}  {counts}; images in DDS ms (median / max): {in_dds or '-'}; "
                 f"bottleneck: {r['bottleneck']}"
             )
+    if args.timeline:
+        print("\nwhere the disparity's latency goes (bench/timeline_node.py; medians over the frames, ms)")
+        for r in rows:
+            print(f"{r['case']:26s}{r['profile']:>6s}")
+            for step, ms in r.get("timeline_ms", {}).items():
+                print(f"  {step:48s}{ms:7.2f}")
     if args.anchor is not None:
         print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
     elif args.anchor_summary.exists():
