@@ -678,8 +678,8 @@ def main() -> None:
         f"profiles: {' and '.join(args.profiles)}",
         flush=True,
     )
-    # numba's kernels compiled (or loaded) now: on a fresh machine, compiling on the node's first frame takes
-    # longer than a whole case's stream (15 s for `quality` on 2 cores)
+    # numba's kernels compiled (or loaded) now: a census node compiles them before it subscribes, on a fresh
+    # machine 23-37 s here and about twice that on a machine half as fast, near the publisher's 60 s wait
     subprocess.run([sys.executable, "-m", "stereo_depth.cli", "compile"], check=True, stdout=subprocess.DEVNULL)
     all_runs: list[dict[str, Any]] = []
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {(n, p): [] for p in args.profiles for n in args.cases}

@@ -33,7 +33,9 @@ from rclpy.serialization import serialize_message
 
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
-from stereo_depth.messages import MessageBuffer, depth_to_cloud, make_header
+from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
+from stereo_depth.messages import make_header
+from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -51,37 +53,36 @@ def spin(seconds: float) -> None:
 
 
 class CloudStage:
-    """The node's second stage for one frame, on a thread of its own: depth and points2, serialized."""
+    """The node's second stage for one frame, on a thread of its own: its own `result_geometry` and
+    `geometry_outputs` (stereo_depth/frames.py) build points2, serialized as rclpy's publish() does."""
 
     def __init__(self, pipeline: StereoPipeline) -> None:
         self._pipeline = pipeline
         self._thread = ThreadPoolExecutor(max_workers=1)
-        self._buffers = {avoid_padding: MessageBuffer() for avoid_padding in CLOUD_MODES.values()}
+        self._states = {avoid_padding: OutputState() for avoid_padding in CLOUD_MODES.values()}  # reused buffers
 
-    def start(self, result: StereoResult, avoid_padding: bool) -> Future[None]:
-        return self._thread.submit(self._run, result, avoid_padding)
+    def start(self, frame: StereoFrame, result: StereoResult, avoid_padding: bool) -> Future[None]:
+        return self._thread.submit(self._run, frame, result, avoid_padding)
 
-    def _run(self, result: StereoResult, avoid_padding: bool) -> None:
-        assert result.camera is not None
-        self._pipeline.add_geometry(result, want_points=False)
-        assert result.depth is not None
-        rays = self._pipeline.rays_for(result.camera)
-        header = make_header(RCLPY_TYPES, 0, FRAME_ID)
-        buffer = self._buffers[avoid_padding]
-        cloud = depth_to_cloud(RCLPY_TYPES, header, result.depth, rays, result.left_rect, avoid_padding, buffer)
-        serialize_message(cloud)
+    def _run(self, frame: StereoFrame, result: StereoResult, avoid_padding: bool) -> None:
+        geometry = result_geometry(self._pipeline, frame, result)
+        options = OutputOptions(avoid_point_cloud_padding=avoid_padding)
+        state = self._states[avoid_padding]
+        serialize_message(
+            geometry_outputs(RCLPY_TYPES, frame.header, geometry, options, ("points2",), state)["points2"]
+        )
 
 
-def spend_gap(mode: str, seconds: float, clouds: CloudStage, result: StereoResult | None) -> None:
-    """The `seconds` before a frame as `mode` spends them; `result`: the previous frame's match, if any."""
+def spend_gap(mode: str, seconds: float, clouds: CloudStage, previous: tuple[StereoFrame, StereoResult] | None) -> None:
+    """The `seconds` before a frame as `mode` spends them; `previous`: the last frame and its match, if any."""
     if mode == "frame after frame":
         return
     if mode == "gap spent spinning":
         spin(seconds)
         return
     stage: Future[None] | None = None
-    if mode in CLOUD_MODES and result is not None:
-        stage = clouds.start(result, CLOUD_MODES[mode])
+    if mode in CLOUD_MODES and previous is not None:
+        stage = clouds.start(*previous, CLOUD_MODES[mode])
     time.sleep(seconds)
     if stage is not None:
         stage.result()  # ends within the gap: the next match has the cores to itself
@@ -96,17 +97,19 @@ def main() -> None:
     gap_s = args.gap_ms / 1000.0
     pipeline = StereoPipeline(make_params("stereo_image_proc"))
     camera = pipeline.camera_for(*camera_infos(640, 480))
+    header = make_header(RCLPY_TYPES, 0, FRAME_ID)
     clouds = CloudStage(pipeline)
     pairs = list(frames(640, 480, 20))
     ms: dict[str, list[float]] = {mode: [] for mode in MODES}
     for round_ in range(args.rounds):
         for mode in MODES[round_ % len(MODES) :] + MODES[: round_ % len(MODES)]:  # each round starts one later
-            result = None
+            previous = None
             for i in range(args.frames):
-                spend_gap(mode, gap_s, clouds, result)
+                spend_gap(mode, gap_s, clouds, previous)
                 left, right = pairs[i % len(pairs)]
+                frame = StereoFrame(i, header, left, right, camera, rectified=False)
                 start = time.perf_counter()
-                result = pipeline.match(left, right, camera)
+                previous = frame, match_frame(pipeline, frame)
                 ms[mode].append((time.perf_counter() - start) * 1000.0)
     baseline = statistics.median(ms[MODES[0]])
     print(f"BM 640x480, 64 disparities, window 15; gap {args.gap_ms:g} ms; {args.rounds} rounds x {args.frames} frames")
