@@ -29,8 +29,6 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
-from rclpy.serialization import serialize_message
-
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
@@ -54,7 +52,7 @@ def spin(seconds: float) -> None:
 
 class CloudStage:
     """The node's second stage for one frame, on a thread of its own: its own `result_geometry` and
-    `geometry_outputs` (stereo_depth/frames.py) build points2, serialized as rclpy's publish() does."""
+    `geometry_outputs` (stereo_depth/frames.py) build points2 in its serialized bytes."""
 
     def __init__(self, pipeline: StereoPipeline) -> None:
         self._pipeline = pipeline
@@ -68,9 +66,8 @@ class CloudStage:
         geometry = result_geometry(self._pipeline, frame, result)
         options = OutputOptions(avoid_point_cloud_padding=avoid_padding)
         state = self._states[avoid_padding]
-        serialize_message(
-            geometry_outputs(RCLPY_TYPES, frame.header, geometry, options, ("points2",), state)["points2"]
-        )
+        points2 = geometry_outputs(RCLPY_TYPES, frame.header, geometry, options, ("points2",), state)["points2"]
+        points2.buffer.tobytes()  # built in its serialized bytes; publishing copies them once into DDS
 
 
 def spend_gap(mode: str, seconds: float, clouds: CloudStage, previous: tuple[StereoFrame, StereoResult] | None) -> None:

@@ -191,6 +191,8 @@ def performance(run: Run) -> bool:
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
     print("\nBM after the cores sat idle (`bench/idle_gap.py`):\n")
     ok = run.bench("idle_gap.py", quick=("--frames", "10", "--rounds", "1")) and ok
+    print("\nPublishing points2 while the next frame is matched (`bench/serialized_publish.py`):\n")
+    ok = run.bench("serialized_publish.py", quick=("--frames", "5")) and ok
     print("\nPage faults and time per frame, freed memory kept or not (`bench/page_faults.py`):\n")
     ok = run.bench("page_faults.py", quick=("--repeat", "2")) and ok
     print("\nOffline, `stereo-depth process` against a bare loop (`bench/offline_process.py`):\n")

@@ -13,8 +13,9 @@ from __future__ import annotations
 import array
 import dataclasses
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -73,10 +74,20 @@ class MessageTypes:
     DisparityImage: Any
     PointCloud2: Any
     PointField: Any
+    # rclpy's serialize_message: an organized cloud is then built in its CDR bytes (SerializedMessage)
+    serialize: Callable[[Any], bytes] | None = None
 
     @property
     def is_rosbags(self) -> bool:
         return dataclasses.is_dataclass(self.Image)
+
+
+class SerializedMessage(NamedTuple):
+    """A message as the bytes rclpy's `serialize_message` gives (CDR), for stereo_depth.ros.serialized_publish
+    to publish without converting a Python message first."""
+
+    msg_type: Any
+    buffer: np.ndarray  # uint8, the whole serialized message
 
 
 # ---------------------------------------------------------------- headers
@@ -477,7 +488,8 @@ class MessageBuffer:
 
     A VGA cloud is 10 MB, a VGA disparity 1.2 MB: allocating them per frame costs more than filling
     them, and building the data elsewhere costs a copy into the message. rclpy's `publish()` serializes
-    before it returns (and so does the bag writer), so a node may reuse the buffer for its next frame;
+    before it returns (so does rcl for a SerializedMessage, and the bag writer), so a node may reuse
+    the buffer for its next frame;
     keep one per publisher and never reuse it while a message built on it is still to be published.
     Every byte, padding included, is written for each message, so a reused buffer holds what a fresh
     one would.
@@ -488,10 +500,21 @@ class MessageBuffer:
         self._data: Any = None
 
     def get(self, types: MessageTypes, key: tuple[object, ...], size: int) -> Any:
+        """`size` bytes for a message's data: an array.array for rclpy's, a numpy array for rosbags'."""
+        if types.is_rosbags:
+            return self.numpy(key, size)
         if self._key != key:
-            self._data = np.zeros(size, np.uint8) if types.is_rosbags else array.array("B", bytes(size))
+            self._data = array.array("B", bytes(size))
             self._key = key
         return self._data
+
+    def numpy(self, key: tuple[object, ...], size: int) -> np.ndarray:
+        """`size` bytes as a uint8 numpy array."""
+        if self._key != ("numpy", key):
+            self._data = np.zeros(size, np.uint8)
+            self._key = ("numpy", key)
+        data: np.ndarray = self._data
+        return data
 
 
 def depth_to_cloud(
@@ -517,8 +540,32 @@ def depth_to_cloud(
     """
     fields, point_step = cloud_layout(color is not None, avoid_padding)
     height, width = depth.shape
-    key = (height, width, tuple(fields), point_step)
-    data = (buffer or MessageBuffer()).get(types, key, height * width * point_step)
+    buffer = buffer or MessageBuffer()
+
+    def cloud(data: Any, height: int, width: int) -> Any:
+        return _with_data(
+            types,
+            types.PointCloud2,
+            data,
+            header=header,
+            height=height,
+            width=width,
+            fields=[types.PointField(name=n, offset=o, datatype=FLOAT32, count=1) for n, o in fields],
+            is_bigendian=sys.byteorder == "big",
+            point_step=point_step,
+            row_step=point_step * width,
+            is_dense=not organized,
+        )
+
+    size = height * width * point_step
+    if organized and types.serialize is not None:  # its CDR bytes, the points written in place
+        message = _serialized_with_data(
+            types.serialize, cloud(_bytes(types, np.empty(0, np.uint8)), height, width), size, buffer
+        )
+        records = message.buffer[-1 - size : -1].reshape(height, width, point_step)
+        _fill_records(records, fields, depth, rays, color)
+        return message
+    data = buffer.get(types, (height, width, tuple(fields), point_step), size)
     records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
     _fill_records(records, fields, depth, rays, color)
     if not organized:  # the valid points, copied out of the organized records (faster than gathering)
@@ -527,19 +574,23 @@ def depth_to_cloud(
             kept = _voxel_records(kept, fields, voxel_size)
         height, width = 1, len(kept)
         data = _bytes(types, kept)
-    return _with_data(
-        types,
-        types.PointCloud2,
-        data,
-        header=header,
-        height=height,
-        width=width,
-        fields=[types.PointField(name=n, offset=o, datatype=FLOAT32, count=1) for n, o in fields],
-        is_bigendian=sys.byteorder == "big",
-        point_step=point_step,
-        row_step=point_step * width,
-        is_dense=not organized,
-    )
+    return cloud(data, height, width)
+
+
+def _serialized_with_data(
+    serialize: Callable[[Any], bytes], empty: Any, size: int, buffer: MessageBuffer
+) -> SerializedMessage:
+    """The CDR bytes of PointCloud2 `empty` with `size` data bytes, left to fill: `empty` serialized
+    ends with its data's length (uint32, 0) and is_dense (one byte), so the message is those bytes
+    up to the length, `size` as the length, the data, and is_dense again."""
+    head = serialize(empty)
+    prefix = len(head) - 5
+    order = "<" if head[1] == 1 else ">"  # the encapsulation: CDR little endian (1) or big endian (0)
+    out = buffer.numpy((prefix, size), prefix + 4 + size + 1)
+    out[:prefix] = np.frombuffer(head, np.uint8, prefix)
+    out[prefix : prefix + 4] = np.array([size], order + "u4").view(np.uint8)
+    out[-1] = head[-1]
+    return SerializedMessage(type(empty), out)
 
 
 def _fill_records(

@@ -16,6 +16,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 import rclpy
 import yaml
@@ -332,3 +333,49 @@ def test_benches_that_talk_dds_take_a_free_domain_id_as_test_runs_do(tmp_path: P
     assert bench_domain({"ROS_DOMAIN_ID": "7"}).stdout.split() == ["7"]
     for bench in ("e2e_dds.py", "soak.py", "cloud_outputs.py"):  # each starts rclpy or nodes
         assert "isolate_on_this_host()" in (BENCH / bench).read_text(), bench
+
+
+@pytest.mark.parametrize("through_rcl", [True, False])
+def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
+    context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, through_rcl: bool
+) -> None:
+    """stereo_node publishes an organized points2 as its CDR bytes through rcl with the GIL released, or
+    through rclpy where librcl cannot be loaded: a subscriber gets the cloud either way, and a lifecycle
+    publisher sends it only while active."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.lifecycle import LifecycleNode
+    from sensor_msgs.msg import PointCloud2
+
+    from stereo_depth.core.geometry import Rays
+    from stereo_depth.messages import SerializedMessage, depth_to_cloud, make_header
+    from stereo_depth.ros import serialized_publish
+    from stereo_depth.ros.types import RCLPY_TYPES
+
+    if not through_rcl:
+        monkeypatch.setattr(serialized_publish, "_rcl", lambda: None)
+    depth = (1.0 + np.arange(12, dtype=np.float32).reshape(3, 4) / 10).astype(np.float32)
+    depth[1, 2] = np.nan
+    rays = Rays(x=np.linspace(-0.5, 0.5, 4, dtype=np.float32)[None, :], y=np.array([[-0.2], [0.0], [0.3]], np.float32))
+    color = np.full((3, 4, 3), 200, np.uint8)
+    header = make_header(RCLPY_TYPES, 1_700_000_000_000_000_001, "cam_left")
+    cloud = depth_to_cloud(RCLPY_TYPES, header, depth, rays, color)
+    assert isinstance(cloud, SerializedMessage)
+    expected = depth_to_cloud(dataclasses.replace(RCLPY_TYPES, serialize=None), header, depth, rays, color)
+    node = LifecycleNode("serialized_publish_under_test", context=context, start_parameter_services=False)
+    publisher = node.create_lifecycle_publisher(PointCloud2, "points2", 10)
+    received: list[Any] = []
+    node.create_subscription(PointCloud2, "points2", received.append, 10)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    wait_until(lambda: publisher.get_subscription_count() > 0, "the subscription to match")
+    serialized_publish.publish(publisher, cloud)  # inactive: nothing goes out
+    publisher.on_activate(None)
+    serialized_publish.publish(publisher, cloud)
+    deadline = time.monotonic() + 20.0
+    while not received and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    for _ in range(20):  # anything the inactive publisher had sent would be here by now
+        executor.spin_once(timeout_sec=0.05)
+    assert received == [expected]
+    executor.shutdown()
+    node.destroy_node()

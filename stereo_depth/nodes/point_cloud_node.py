@@ -18,6 +18,7 @@ from stereo_depth.errors import ImageError
 from stereo_depth.frames import Geometry, InputNames, OutputState, geometry_outputs
 from stereo_depth.messages import disparity_from_msg
 from stereo_depth.options import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
+from stereo_depth.ros.serialized_publish import publish
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet
@@ -70,7 +71,7 @@ class PointCloudNode(StereoIONode):
         cloud = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, ("points2",), self._state)
         timed(stages, "points", start)
         start = time.perf_counter()
-        self._points.publish(cloud["points2"])
+        publish(self._points, cloud["points2"])
         self.published("points2")
         timed(stages, "publish", start)
         return stages

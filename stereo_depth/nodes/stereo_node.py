@@ -39,6 +39,7 @@ from stereo_depth.options import (
     Settings,
 )
 from stereo_depth.ros.latest_worker import LatestWorker
+from stereo_depth.ros.serialized_publish import publish
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
@@ -212,7 +213,7 @@ class StereoNode(StereoIONode):
         one topic shows as that topic's time."""
         for name, message in messages.items():
             start = time.perf_counter()
-            self._output_publishers[name].publish(message)
+            publish(self._output_publishers[name], message)
             timed(stages, f"publish {name}", start)
             self.published(name)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField, RegionOfInterest
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
@@ -19,4 +20,5 @@ RCLPY_TYPES = MessageTypes(
     DisparityImage=DisparityImage,
     PointCloud2=PointCloud2,
     PointField=PointField,
+    serialize=serialize_message,  # organized clouds in their CDR bytes: stereo_depth.ros.serialized_publish
 )
