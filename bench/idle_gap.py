@@ -34,7 +34,7 @@ from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
 from stereo_depth.messages import make_header
 from stereo_depth.options import OutputOptions
-from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import FRAME_ID, camera_infos, frames
@@ -66,7 +66,7 @@ class CloudStage:
         geometry = result_geometry(self._pipeline, frame, result)
         options = OutputOptions(avoid_point_cloud_padding=avoid_padding)
         state = self._states[avoid_padding]
-        points2 = geometry_outputs(RCLPY_TYPES, frame.header, geometry, options, ("points2",), state)["points2"]
+        points2 = geometry_outputs(RCLPY_SERIALIZED, frame.header, geometry, options, ("points2",), state)["points2"]
         points2.buffer.tobytes()  # built in its serialized bytes; publishing copies them once into DDS
 
 

@@ -15,7 +15,6 @@ the tick when the GIL is free, the whole publish when it is held) and the time o
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import statistics
 import subprocess
 import sys
@@ -102,9 +101,9 @@ def main() -> None:
     from sensor_msgs.msg import PointCloud2
 
     from stereo_depth.ros.serialized_publish import publish
-    from stereo_depth.ros.types import RCLPY_TYPES
+    from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 
-    types = {WAYS[0]: dataclasses.replace(RCLPY_TYPES, serialize=None), WAYS[1]: RCLPY_TYPES}
+    types = {WAYS[0]: RCLPY_TYPES, WAYS[1]: RCLPY_SERIALIZED}
     pipeline = StereoPipeline(make_params("stereo_image_proc"))
     camera = pipeline.camera_for(*camera_infos(640, 480))
     left, right = next(iter(frames(640, 480, 1)))

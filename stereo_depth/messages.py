@@ -74,7 +74,7 @@ class MessageTypes:
     DisparityImage: Any
     PointCloud2: Any
     PointField: Any
-    # rclpy's serialize_message: an organized cloud is then built in its CDR bytes (SerializedMessage)
+    # rclpy's serialize_message: a disparity and an organized cloud are then built in their CDR bytes
     serialize: Callable[[Any], bytes] | None = None
 
     @property
@@ -427,21 +427,30 @@ def disparity_to_msg(
     offset = np.float32(camera.disparity_offset)
     min_d = float(min_disparity) - float(offset)
     height, width = disparity.shape
-    data = (buffer or MessageBuffer()).get(types, ("32FC1", height, width), height * width * 4)
-    image = np.frombuffer(data, np.float32).reshape(height, width)  # computed straight into the message
-    np.subtract(disparity, offset, out=image, dtype=np.float32)
-    np.fmax(image, np.float32(min_d - 1.0), out=image)
     x, y, w, h = valid_window
-    return types.DisparityImage(
-        header=header,
-        image=_image_with_data(types, header, data, height, width, "32FC1", width * 4),
-        f=float(camera.fx),
-        t=float(camera.baseline),
-        valid_window=types.RegionOfInterest(x_offset=x, y_offset=y, height=h, width=w, do_rectify=False),
-        min_disparity=min_d,
-        max_disparity=min_d + float(disparity_range) - 1.0,
-        delta_d=float(delta_d),
-    )
+
+    def message(data: Any) -> Any:
+        return types.DisparityImage(
+            header=header,
+            image=_image_with_data(types, header, data, height, width, "32FC1", width * 4),
+            f=float(camera.fx),
+            t=float(camera.baseline),
+            valid_window=types.RegionOfInterest(x_offset=x, y_offset=y, height=h, width=w, do_rectify=False),
+            min_disparity=min_d,
+            max_disparity=min_d + float(disparity_range) - 1.0,
+            delta_d=float(delta_d),
+        )
+
+    buffer = buffer or MessageBuffer()
+    serialized = in_serialized_bytes(types, message, height * width * 4, buffer)
+    if serialized is None:
+        data = buffer.get(types, ("32FC1", height, width), height * width * 4)
+        msg, image = message(data), np.frombuffer(data, np.float32).reshape(height, width)
+    else:  # the serialized message (rclpy)
+        msg, image = serialized[0], serialized[1].view(np.float32).reshape(height, width)
+    np.subtract(disparity, offset, out=image, dtype=np.float32)  # computed straight into the message
+    np.fmax(image, np.float32(min_d - 1.0), out=image)
+    return msg
 
 
 def disparity_from_msg(msg: Any) -> np.ndarray:
@@ -517,6 +526,35 @@ class MessageBuffer:
         return data
 
 
+# bytes that stand for a message's data while it is serialized: where they land, the data goes
+DATA_MARK = bytes.fromhex("a55ac33c96690ff0")
+
+
+def in_serialized_bytes(
+    types: MessageTypes, build: Callable[[Any], Any], size: int, buffer: MessageBuffer
+) -> tuple[SerializedMessage, np.ndarray] | None:
+    """The message `build(data)` gives, as its serialized bytes in `buffer` with `size` data bytes
+    left to fill (the second item, a view of them). The message is serialized once with a mark as its
+    data, 8 to 15 bytes long and as long as `size` modulo 8, so what follows the data is aligned as
+    after the mark; the real data replaces the mark, its length (uint32) the mark's. None (build the
+    message instead) without `types.serialize`, or if the mark is not found exactly once."""
+    if types.serialize is None:
+        return None
+    mark = (DATA_MARK * 2)[: len(DATA_MARK) + size % len(DATA_MARK)]
+    message = build(_bytes(types, np.frombuffer(mark, np.uint8)))
+    marked = types.serialize(message)
+    at = marked.find(mark)
+    if at < 8 or marked.find(mark, at + 1) != -1:
+        return None
+    prefix, tail = marked[: at - 4], marked[at + len(mark) :]
+    order = "<" if marked[1] == 1 else ">"  # the encapsulation: CDR little endian (1) or big endian (0)
+    out = buffer.numpy((len(prefix), len(tail), size), len(prefix) + 4 + size + len(tail))
+    out[: len(prefix)] = np.frombuffer(prefix, np.uint8)
+    out[len(prefix) : at] = np.array([size], order + "u4").view(np.uint8)
+    out[at + size :] = np.frombuffer(tail, np.uint8)
+    return SerializedMessage(type(message), out), out[at : at + size]
+
+
 def depth_to_cloud(
     types: MessageTypes,
     header: Any,
@@ -558,13 +596,12 @@ def depth_to_cloud(
         )
 
     size = height * width * point_step
-    if organized and types.serialize is not None:  # its CDR bytes, the points written in place
-        message = _serialized_with_data(
-            types.serialize, cloud(_bytes(types, np.empty(0, np.uint8)), height, width), size, buffer
-        )
-        records = message.buffer[-1 - size : -1].reshape(height, width, point_step)
-        _fill_records(records, fields, depth, rays, color)
-        return message
+    serialized = (
+        in_serialized_bytes(types, lambda data: cloud(data, height, width), size, buffer) if organized else None
+    )
+    if serialized is not None:  # the points written into the serialized message (rclpy)
+        _fill_records(serialized[1].reshape(height, width, point_step), fields, depth, rays, color)
+        return serialized[0]
     data = buffer.get(types, (height, width, tuple(fields), point_step), size)
     records = np.frombuffer(data, dtype=np.uint8).reshape(height, width, point_step)
     _fill_records(records, fields, depth, rays, color)
@@ -575,22 +612,6 @@ def depth_to_cloud(
         height, width = 1, len(kept)
         data = _bytes(types, kept)
     return cloud(data, height, width)
-
-
-def _serialized_with_data(
-    serialize: Callable[[Any], bytes], empty: Any, size: int, buffer: MessageBuffer
-) -> SerializedMessage:
-    """The CDR bytes of PointCloud2 `empty` with `size` data bytes, left to fill: `empty` serialized
-    ends with its data's length (uint32, 0) and is_dense (one byte), so the message is those bytes
-    up to the length, `size` as the length, the data, and is_dense again."""
-    head = serialize(empty)
-    prefix = len(head) - 5
-    order = "<" if head[1] == 1 else ">"  # the encapsulation: CDR little endian (1) or big endian (0)
-    out = buffer.numpy((prefix, size), prefix + 4 + size + 1)
-    out[:prefix] = np.frombuffer(head, np.uint8, prefix)
-    out[prefix : prefix + 4] = np.array([size], order + "u4").view(np.uint8)
-    out[-1] = head[-1]
-    return SerializedMessage(type(empty), out)
 
 
 def _fill_records(

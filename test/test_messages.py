@@ -6,8 +6,6 @@ those a Jazzy publisher puts on the wire.
 
 from __future__ import annotations
 
-import dataclasses
-
 import cv2
 import numpy as np
 import pytest
@@ -226,28 +224,34 @@ def test_cloud_in_a_reused_buffer_is_the_cloud_in_a_fresh_one_byte_for_byte(
 
 
 @pytest.mark.parametrize("avoid_padding", [False, True])
-def test_organized_cloud_built_in_its_cdr_bytes_is_the_cloud_rclpy_serializes(
+def test_disparity_and_cloud_built_in_their_cdr_bytes_are_what_rclpy_serializes(
     camera: StereoCamera, avoid_padding: bool
 ) -> None:
-    """The live nodes build an organized points2 straight into its serialized bytes (published with the
-    GIL released): the bytes must be a whole message, the same one rclpy would serialize, frame after
-    frame in one reused buffer, a longer frame_id included."""
+    """The live nodes build the disparity and an organized points2 straight into their serialized bytes
+    (published with the GIL released): the bytes must be a whole message, the same one rclpy would
+    serialize, frame after frame in one reused buffer, a longer frame_id included."""
     from rclpy.serialization import deserialize_message, serialize_message
 
-    from stereo_depth.ros.types import RCLPY_TYPES
+    from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 
-    plain = dataclasses.replace(RCLPY_TYPES, serialize=None)  # rclpy messages as the other nodes build them
     scene = load_scene(SCENES / "artl")
     rays = Rays.for_camera(camera)
-    buffer = MessageBuffer()
+    buffer, disparity_buffer = MessageBuffer(), MessageBuffer()
     assert scene.gt is not None
     for frame_id, disparity in (("cam", scene.gt), ("camera_left_optical", scene.gt[:, ::-1].copy())):
         header = make_header(RCLPY_TYPES, 1_700_000_000_123_456_789, frame_id)
         depth = disparity_to_depth(disparity, camera)
-        built = depth_to_cloud(RCLPY_TYPES, header, depth, rays, scene.left, avoid_padding, buffer)
+        built = depth_to_cloud(RCLPY_SERIALIZED, header, depth, rays, scene.left, avoid_padding, buffer)
         assert isinstance(built, SerializedMessage) and built.msg_type is RCLPY_TYPES.PointCloud2
-        expected = depth_to_cloud(plain, header, depth, rays, scene.left, avoid_padding)
+        expected = depth_to_cloud(RCLPY_TYPES, header, depth, rays, scene.left, avoid_padding)
         assert built.buffer.nbytes == len(serialize_message(expected))
         received = deserialize_message(built.buffer.tobytes(), RCLPY_TYPES.PointCloud2)
         assert received == expected  # every field, the header and all the points' bytes
         np.testing.assert_array_equal(cloud_to_arrays(received)[0], depth_to_points(depth, rays))
+        window = (3, 1, 100, 200)
+        built = disparity_to_msg(RCLPY_SERIALIZED, header, disparity, camera, 4, 64, window, buffer=disparity_buffer)
+        assert isinstance(built, SerializedMessage) and built.msg_type is RCLPY_TYPES.DisparityImage
+        expected = disparity_to_msg(RCLPY_TYPES, header, disparity, camera, 4, 64, window)
+        received = deserialize_message(built.buffer.tobytes(), RCLPY_TYPES.DisparityImage)
+        round_trip = deserialize_message(serialize_message(expected), RCLPY_TYPES.DisparityImage)  # float32 t
+        assert received == round_trip  # the fields after the image's data too (the data's length is odd x 4)

@@ -349,7 +349,7 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
     from stereo_depth.core.geometry import Rays
     from stereo_depth.messages import SerializedMessage, depth_to_cloud, make_header
     from stereo_depth.ros import serialized_publish
-    from stereo_depth.ros.types import RCLPY_TYPES
+    from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 
     if not through_rcl:
         monkeypatch.setattr(serialized_publish, "_rcl", lambda: None)
@@ -358,9 +358,9 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
     rays = Rays(x=np.linspace(-0.5, 0.5, 4, dtype=np.float32)[None, :], y=np.array([[-0.2], [0.0], [0.3]], np.float32))
     color = np.full((3, 4, 3), 200, np.uint8)
     header = make_header(RCLPY_TYPES, 1_700_000_000_000_000_001, "cam_left")
-    cloud = depth_to_cloud(RCLPY_TYPES, header, depth, rays, color)
+    cloud = depth_to_cloud(RCLPY_SERIALIZED, header, depth, rays, color)
     assert isinstance(cloud, SerializedMessage)
-    expected = depth_to_cloud(dataclasses.replace(RCLPY_TYPES, serialize=None), header, depth, rays, color)
+    expected = depth_to_cloud(RCLPY_TYPES, header, depth, rays, color)
     node = LifecycleNode("serialized_publish_under_test", context=context, start_parameter_services=False)
     publisher = node.create_lifecycle_publisher(PointCloud2, "points2", 10)
     received: list[Any] = []

@@ -13,8 +13,9 @@ from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.frames import filter_over_time, image_outputs
 from stereo_depth.messages import MessageBuffer
 from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS, Settings
+from stereo_depth.ros.serialized_publish import publish
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
-from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.ros.types import RCLPY_SERIALIZED
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
 
 
@@ -47,9 +48,9 @@ class DisparityNode(StereoIONode):
         filter_over_time(self._temporal, frame, result, settings.output)
         start = time.perf_counter()
         for message in image_outputs(
-            RCLPY_TYPES, frame.header, result, settings.stereo, ("disparity",), self._buffer
+            RCLPY_SERIALIZED, frame.header, result, settings.stereo, ("disparity",), self._buffer
         ).values():
-            self._disparity.publish(message)
+            publish(self._disparity, message)
             self.published("disparity")
         timed(stages, "publish", start)
         return {**result.timings_ms, **stages}

@@ -20,7 +20,7 @@ from stereo_depth.messages import disparity_from_msg
 from stereo_depth.options import CLOUD_OPTIONS, INPUT_OPTIONS, Settings
 from stereo_depth.ros.serialized_publish import publish
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
-from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.ros.types import RCLPY_SERIALIZED
 from stereo_depth.sync import StereoSet
 
 
@@ -68,7 +68,7 @@ class PointCloudNode(StereoIONode):
         depth = disparity_to_depth(disparity, camera, offset_adjusted=True)
         geometry = Geometry(depth, camera, self.pipeline.rays_for(camera), frame.left, camera)
         output = settings.output
-        cloud = geometry_outputs(RCLPY_TYPES, frame.header, geometry, output, ("points2",), self._state)
+        cloud = geometry_outputs(RCLPY_SERIALIZED, frame.header, geometry, output, ("points2",), self._state)
         timed(stages, "points", start)
         start = time.perf_counter()
         publish(self._points, cloud["points2"])

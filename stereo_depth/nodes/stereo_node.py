@@ -41,7 +41,7 @@ from stereo_depth.options import (
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.serialized_publish import publish
 from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
-from stereo_depth.ros.types import RCLPY_TYPES
+from stereo_depth.ros.types import RCLPY_SERIALIZED
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet
 
 OUTPUT_TYPES = {
@@ -151,7 +151,7 @@ class StereoNode(StereoIONode):
         with self.outputs_in_order() as newest:
             if newest:
                 frame_outputs(
-                    RCLPY_TYPES,
+                    RCLPY_SERIALIZED,
                     self.pipeline,
                     frame,
                     result,

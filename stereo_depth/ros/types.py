@@ -1,6 +1,8 @@
-"""The rclpy message classes, as the `MessageTypes` record that `stereo_depth.messages` builds with."""
+"""The rclpy message classes, as the `MessageTypes` records that `stereo_depth.messages` builds with."""
 
 from __future__ import annotations
+
+import dataclasses
 
 from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
@@ -20,5 +22,7 @@ RCLPY_TYPES = MessageTypes(
     DisparityImage=DisparityImage,
     PointCloud2=PointCloud2,
     PointField=PointField,
-    serialize=serialize_message,  # organized clouds in their CDR bytes: stereo_depth.ros.serialized_publish
 )
+# what the nodes publish: the disparity and organized clouds as their serialized bytes, built in place and
+# published with the GIL released (stereo_depth.ros.serialized_publish); other messages as RCLPY_TYPES
+RCLPY_SERIALIZED = dataclasses.replace(RCLPY_TYPES, serialize=serialize_message)
