@@ -5,7 +5,9 @@ flavour) and get messages of that flavour back. Every image encoding, row paddin
 point-cloud layout detail lives here and nowhere else.
 
 Reading never copies when it does not have to (np.frombuffer over the message buffer); writing copies
-each buffer once (rclpy's setter takes an array.array without looking at every element).
+each buffer once (rclpy's setter takes an array.array without looking at every element), and a flavour
+with `serialize` (the live nodes') gets the disparity and organized clouds computed straight into their
+serialized bytes (`in_serialized_bytes`).
 """
 
 from __future__ import annotations
@@ -497,9 +499,9 @@ class MessageBuffer:
 
     A VGA cloud is 10 MB, a VGA disparity 1.2 MB: allocating them per frame costs more than filling
     them, and building the data elsewhere costs a copy into the message. rclpy's `publish()` serializes
-    before it returns (so does rcl for a SerializedMessage, and the bag writer), so a node may reuse
-    the buffer for its next frame;
-    keep one per publisher and never reuse it while a message built on it is still to be published.
+    before it returns (rcl copies a SerializedMessage's bytes before it returns, and the bag writer
+    serializes too), so a node may reuse the buffer for its next frame; keep one per publisher and
+    never reuse it while a message built on it is still to be published.
     Every byte, padding included, is written for each message, so a reused buffer holds what a fresh
     one would.
     """
