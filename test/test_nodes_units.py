@@ -353,6 +353,7 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
 
     if not through_rcl:
         monkeypatch.setattr(serialized_publish, "_rcl", lambda: None)
+    assert (serialized_publish._rcl() is not None) == through_rcl  # librcl loads where rclpy runs
     depth = (1.0 + np.arange(12, dtype=np.float32).reshape(3, 4) / 10).astype(np.float32)
     depth[1, 2] = np.nan
     rays = Rays(x=np.linspace(-0.5, 0.5, 4, dtype=np.float32)[None, :], y=np.array([[-0.2], [0.0], [0.3]], np.float32))
