@@ -20,26 +20,31 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from ros_helpers import wait_until
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from stereo_depth.bag.reader import read_messages
+from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, StereoDepthError
 from stereo_depth.frames import InputNames, decode_frame, named
+from stereo_depth.messages import SerializedMessage, depth_to_cloud, make_header
 from stereo_depth.options import NodeOptions, OutputOptions, Settings
 from stereo_depth.options_docs import render_config_yaml
-from stereo_depth.ros import problems
+from stereo_depth.ros import problems, serialized_publish
 from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
+from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 from stereo_depth.sync import StereoSet, SyncCounters
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
@@ -342,15 +347,6 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
     """stereo_node publishes an organized points2 as its CDR bytes through rcl with the GIL released, or
     through rclpy where librcl cannot be loaded: a subscriber gets the cloud either way, and a lifecycle
     publisher sends it only while active."""
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.lifecycle import LifecycleNode
-    from sensor_msgs.msg import PointCloud2
-
-    from stereo_depth.core.geometry import Rays
-    from stereo_depth.messages import SerializedMessage, depth_to_cloud, make_header
-    from stereo_depth.ros import serialized_publish
-    from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
-
     if not through_rcl:
         monkeypatch.setattr(serialized_publish, "_rcl", lambda: None)
     assert (serialized_publish._rcl() is not None) == through_rcl  # librcl loads where rclpy runs

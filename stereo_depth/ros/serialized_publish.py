@@ -1,14 +1,15 @@
 """Publishing a message that is already serialized, with the GIL released.
 
 rclpy's `Publisher.publish()` holds the GIL from the conversion of the Python message to the end of
-the DDS write: 6.6 ms for a 9.8 MB VGA points2 on an idle AMD EPYC (Zen 3), 14-16 ms in the node with
-the matcher beside it. The matcher's thread needs the GIL between its OpenCV calls and the executor
-needs it to take the next images, so the next frame's disparity waited for the previous frame's
-cloud. An organized cloud is therefore built straight into its CDR bytes (`messages.SerializedMessage`)
-and handed to `rcl_publish_serialized_message` through ctypes, which releases the GIL for the call:
-4.9 ms on that machine with one copy fewer, the other threads running meanwhile
-(`bench/serialized_publish.py`). rcl returns once Fast DDS has copied the bytes, so the buffer may be
-reused for the next frame, as with `publish()`.
+the DDS write: 7.6-12.5 ms for a 9.8 MB VGA points2 on a 2-core AMD EPYC (Zen 3), 14-19 ms in the node
+with the matcher beside it. The matcher's thread needs the GIL between its OpenCV calls and the
+executor needs it to take the next images, so the next frame waited for the previous frame's outputs.
+The nodes therefore compute the disparity and an organized cloud straight into their CDR bytes
+(`messages.in_serialized_bytes`, a `SerializedMessage`) and hand them to
+`rcl_publish_serialized_message` through ctypes, which releases the GIL for the call: one copy fewer,
+0.72-0.77x the time for that cloud, the other threads running meanwhile (`bench/serialized_publish.py`).
+rcl returns once Fast DDS has copied the bytes, so the buffer may be reused for the next frame, as
+with `publish()`.
 
 Where librcl cannot be loaded (another layout of the ROS install), rclpy publishes the same bytes
 (`publish(bytes)`), holding the GIL as before.
