@@ -10,7 +10,7 @@ PYTHON312 := $(shell for c in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 
-.PHONY: venv test test-min demo lint lock bench-readme clean
+.PHONY: venv compile compile-min test test-min demo lint lock bench-readme clean
 
 venv: $(STAMP)
 
@@ -47,17 +47,26 @@ lock: $(VENV)/bin/uv
 	$(UV_COMPILE) --resolution lowest-direct -c $(VENV)/test-tool-pins.txt requirements.txt requirements-test.txt \
 		-o requirements-min.lock
 
+# numba's machine code for the census core and the temporal filter, built once (a minute or two the first
+# time, a second once cached) before the test workers start: else each worker would build it.
+compile: venv
+	$(VENV)/bin/stereo-depth compile
+
 # Two workers, each test file on one of them (its module fixtures start its nodes once); each worker
 # has a ROS domain id of its own (test/conftest.py), so their DDS traffic never mixes.
-test: venv
+test: compile
 	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile test
 
 # The oldest versions requirements.txt claims (OpenCV 4.6, numpy 1.26, numba, rosbags, mcap at their lower
 # bounds; requirements-min.lock), on the core, bag and node tests: what an Ubuntu 24.04 / rosdep user has.
 MIN_TESTS := $(filter-out test/test_package.py test/test_fleet.py test/test_readme_claims.py,$(wildcard test/test_*.py))
 # Its numba keeps a cache of its own: one beside the sources is rewritten by whichever numba compiled last.
-test-min: $(MIN_VENV)/.installed
-	NUMBA_CACHE_DIR=$(MIN_VENV)/numba-cache $(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
+MIN_NUMBA := NUMBA_CACHE_DIR=$(MIN_VENV)/numba-cache
+compile-min: $(MIN_VENV)/.installed
+	$(MIN_NUMBA) $(MIN_VENV)/bin/stereo-depth compile
+
+test-min: compile-min
+	$(MIN_NUMBA) $(MIN_VENV)/bin/python -m pytest -q -n 2 --dist loadfile $(MIN_TESTS)
 
 demo: venv
 	$(VENV)/bin/stereo-depth demo

@@ -22,7 +22,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core.census_sgm import census_sgm, fill_holes
+from stereo_depth.core import temporal
+from stereo_depth.core.census_sgm import census_sgm, compile_kernels, fill_holes
 from stereo_depth.core.matching import create_matcher
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
@@ -266,14 +267,22 @@ def test_rejects_settings_the_kernels_cannot_honour(keywords: dict[str, int], me
         census_sgm(img, img, **settings)
 
 
+def numba_cache_name(source_folder: Path) -> str:
+    """The folder numba gives a source folder's kernels under NUMBA_CACHE_DIR."""
+    return f"{source_folder.name}_{hashlib.sha1(str(source_folder).encode()).hexdigest()}"
+
+
 def test_compile_command_builds_the_core_ahead_and_names_its_cache(tmp_path: Path) -> None:
-    """Into a cache of its own (NUMBA_CACHE_DIR, which numba prefers) holding the session's kernels but
-    two (numba loads the rest: same sources; the big ones take a minute to build), `stereo-depth compile`
-    must build the two missing ones (the census transform, the hole filler) and name that cache."""
-    kernels = Path(__file__).resolve().parents[1] / "stereo_depth" / "core" / "census_sgm"
-    cache = tmp_path / "numba" / f"census_sgm_{hashlib.sha1(str(kernels).encode()).hexdigest()}"  # numba's name
+    """Into a cache of its own (NUMBA_CACHE_DIR, which numba prefers) holding this session's kernels but
+    two (numba loads the rest: same sources, same numba; the big ones take minutes to build), `stereo-depth
+    compile` must build the two missing ones (the census transform, the hole filler) and name that cache."""
+    core = Path(__file__).resolve().parents[1] / "stereo_depth" / "core"
+    cache = tmp_path / "numba" / numba_cache_name(core / "census_sgm")
     missing = ("census._census-*", "fill._fill_rows-*")
-    shutil.copytree(kernels / "__pycache__", cache, ignore=shutil.ignore_patterns(*missing, "*.pyc"))
+    shutil.copytree(compile_kernels(), cache, ignore=shutil.ignore_patterns(*missing, "*.pyc"))
+    temporal.compile_kernels()  # the command builds these too: theirs is the core folder's cache
+    temporal_cache = Path(temporal._kernels()["store"]._cache._cache_path)  # type: ignore[attr-defined]
+    shutil.copytree(temporal_cache, tmp_path / "numba" / numba_cache_name(core), ignore=shutil.ignore_patterns("*.pyc"))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
     run = subprocess.run(
         [sys.executable, "-m", "stereo_depth.cli", "compile"], env=env, capture_output=True, text=True, timeout=300

@@ -1,5 +1,5 @@
-"""`stereo-depth compile`: build the census_sgm core's (and the temporal filter's) machine code ahead, so
-no first frame waits for it.
+"""`stereo-depth compile`: build the numba kernels' machine code ahead (the census_sgm core, the temporal
+filter, the compressedDepth RVL codec), so no first frame waits for it.
 
 numba compiles the core on its first use (~30 s once per install, cached afterwards). Run this once after
 installing (or in a robot image's build step); it prints where the cache went.
@@ -17,11 +17,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from stereo_depth.core import temporal
     from stereo_depth.core.census_sgm import compile_kernels
+    from stereo_depth.core.rvl import rvl_compress
 
     start = time.perf_counter()
     cache = compile_kernels()
     temporal.compile_kernels()
+    rvl_compress(np.zeros((2, 2), np.uint16))
     print(f"census_sgm core ready in {time.perf_counter() - start:.1f} s; numba cache: {cache}")
     return 0

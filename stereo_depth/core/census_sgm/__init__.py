@@ -20,6 +20,8 @@ closing, median, speckles) and ``fill`` (``fill_holes``); ``census_sgm`` below r
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from stereo_depth.core.census_sgm import aggregation, postprocess
@@ -92,6 +94,7 @@ def census_sgm(
     """
     _check_inputs(left, right, min_disparity, num_disparities, window_size, census_size, paths)
     compile_all()
+    left = np.ascontiguousarray(left)  # a crop or a view would make numba compile another variant
     ch, cw = census_size
     cl = transform._census(transform._pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
     cr = np.ascontiguousarray(
@@ -128,7 +131,7 @@ def compile_kernels() -> str:
     modules when writable (else numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
-    for window_size in (1, 3):  # the 1-pixel window takes its own cost path
+    for window_size, paths in itertools.product((1, 3), (6, 5)):  # window 1 and 5 paths: their own kernels
         disparity, _ = census_sgm(
             image,
             image,
@@ -139,6 +142,7 @@ def compile_kernels() -> str:
             P2=200,
             uniqueness_ratio=3,
             disp12_max_diff=1,
+            paths=paths,
         )
     holes = np.full_like(disparity, 20.0)
     holes[::2, ::3] = np.nan  # some holes, not all: a disparity with none or only holes fills nothing
