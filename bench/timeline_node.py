@@ -11,17 +11,27 @@ from __future__ import annotations
 import atexit
 import json
 import os
+import struct
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from stereo_depth.messages import stamp_to_ns
+from stereo_depth.messages import SerializedMessage, stamp_to_ns
 from stereo_depth.nodes.stereo_node import StereoNode
 from stereo_depth.ros.stereo_io import run_node
 
 _EVENTS: dict[int, dict[str, int]] = {}  # input stamp -> event -> system clock ns
 _LOCK = threading.Lock()
+
+
+def stamp_of(message: Any) -> int:
+    """The header stamp of a message, also of one the node publishes as its CDR bytes (little-endian; the
+    header comes first, after the 4-byte encapsulation: sec int32, nanosec uint32)."""
+    if isinstance(message, SerializedMessage):
+        sec, nanosec = struct.unpack_from("<iI", message.buffer, 4)
+        return int(sec) * 1_000_000_000 + int(nanosec)
+    return stamp_to_ns(message.header.stamp)
 
 
 def record(stamp_ns: int, event: str, at_ns: int | None = None) -> None:
@@ -44,7 +54,7 @@ class TimelineNode(StereoNode):
 
     def _publish(self, messages: dict[str, Any], stages: dict[str, float]) -> None:
         for name, message in messages.items():
-            stamp = stamp_to_ns(message.header.stamp)
+            stamp = stamp_of(message)
             record(stamp, f"publish {name}")
             super()._publish({name: message}, stages)
             record(stamp, f"published {name}")
