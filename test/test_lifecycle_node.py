@@ -92,10 +92,11 @@ def frame_through(managed: Managed, inputs: StereoInput, pair: Pair, disparity: 
     return stamp
 
 
+@pytest.mark.parametrize("executor", ["standard", "events"])
 def test_full_cycle_publishes_only_while_active_and_releases_on_deactivate_and_cleanup(
-    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair
+    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair, executor: str
 ) -> None:
-    managed = start(ros, ros_env, tmp_path, "/cycle")
+    managed = start(ros, ros_env, tmp_path, f"/cycle_{executor}", "-p", f"executor:={executor}")
     ns = managed.ns
     disparity = ros.collector(DisparityImage, f"{ns}/disparity")
     points = ros.collector(PointCloud2, f"{ns}/points2")

@@ -146,6 +146,7 @@ def nodes(
     processes = {
         # a misspelt parameter: warned about once at start-up, otherwise ignored (the tests below see defaults)
         "live": NodeProcess("stereo_node", "/live", ros_env, logs, ["-p", "dispartiy_range:=128"]),
+        "events": NodeProcess("stereo_node", "/events", ros_env, logs, ["-p", "executor:=events"]),
         "rectify_left": NodeProcess("rectify_node", "/split/left", ros_env, logs, ["-r", "image:=image_raw"]),
         "rectify_right": NodeProcess("rectify_node", "/split/right", ros_env, logs, ["-r", "image:=image_raw"]),
         "disparity": NodeProcess("disparity_node", "/split", ros_env, logs),
@@ -270,6 +271,35 @@ def test_split_chain_gives_the_same_cloud_as_stereo_node(ros: RosHarness, live: 
     assert (split_cloud.height, split_cloud.width) == (live_cloud.height, live_cloud.width)
     assert bytes(split_cloud.data) == bytes(live_cloud.data)
     assert np.isfinite(cloud_to_arrays(live_cloud)[0][:, :, 2]).mean() > 0.3
+
+
+def test_the_events_executor_gives_the_same_outputs_and_takes_parameters(
+    ros: RosHarness, live: dict[str, Any], nodes: dict[str, NodeProcess], artl: Pair
+) -> None:
+    """executor:=events (rclpy's C++ EventsExecutor, which calls subscriptions with the message alone): the
+    outputs of /live (standard executor) for the same pair, bit for bit; parameters set at run time take
+    effect as there; `executor` itself is read-only once running."""
+    node = nodes["events"]
+    outputs = {"disparity": ros.collector(DisparityImage, "/events/disparity")}
+    outputs["points2"] = ros.collector(PointCloud2, "/events/points2")
+    for collector in outputs.values():
+        wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
+    inputs = StereoInput(ros, "/events")
+    inputs.wait_matched()
+    wait_until_delivered(inputs, outputs["points2"], artl)
+
+    stamp = next(_stamps)
+    live["inputs"].publish(artl, stamp)
+    inputs.publish(artl, stamp)
+    disparity, standard = outputs["disparity"].wait_stamp(stamp), live["disparity"].wait_stamp(stamp)
+    assert bytes(disparity.image.data) == bytes(standard.image.data)
+    assert bytes(outputs["points2"].wait_stamp(stamp).data) == bytes(live["points2"].wait_stamp(stamp).data)
+
+    wider = send_with_parameters(ros, node.fqn, inputs, outputs, artl, next(_stamps), disparity_range=128)
+    assert wider["disparity"].max_disparity == disparity.max_disparity + 64
+    [refused] = ros.set_parameters(node.fqn, executor="standard")
+    assert not refused.successful and "read-only" in refused.reason
+    assert "executor: rclpy's EventsExecutor" in node.output()  # it ran the one asked for
 
 
 def test_approximate_sync_pairs_only_within_tolerance(ros: RosHarness, live: dict[str, Any], artl: Pair) -> None:
@@ -514,6 +544,7 @@ def test_signal_ends_every_node_cleanly(
         NodeProcess(module, namespace, ros_env, tmp_path)
         for module in ("stereo_node", "disparity_node", "point_cloud_node", "rectify_node")
     ]
+    processes.append(NodeProcess("stereo_node", f"{namespace}_events", ros_env, tmp_path, ["-p", "executor:=events"]))
     try:
         ros.wait_for_nodes(processes)
     finally:

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
@@ -139,7 +139,7 @@ class StereoIONode(Node):
                 self,
                 msg_type,
                 topic,
-                partial(self._on_message, index),
+                self._input_callback(index, settings.options.executor),
                 policy=settings.options.reliability,
                 depth=settings.options.queue_size,
                 on_lost=partial(self.diagnostics.input_lost, self.topics[index]),
@@ -344,6 +344,13 @@ class StereoIONode(Node):
             same_calibration=same_calibration,
         )
 
+    def _input_callback(self, index: int, executor: str) -> Callable[..., None]:
+        """Input `index`'s subscription callback: rclpy's standard executor passes a two-argument one the DDS
+        sample info too; the EventsExecutor calls every callback with the message alone."""
+        if executor == "events":
+            return lambda msg: self._on_message(index, msg, None)
+        return partial(self._on_message, index)
+
     def _on_message(self, index: int, msg: Any, sample: dict[str, int] | None) -> None:
         """A message of input `index`, with its DDS sample info (None for a calibration file's)."""
         stamp = stamp_to_ns(msg.header.stamp)
@@ -526,12 +533,12 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         # The signal handler runs between two bytecodes of this thread: something must wake the spin, also in
         # a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
         node.create_timer(SIGNAL_POLL_S, lambda: None)
-        executor = rclpy.get_global_executor()
+        executor = new_executor(node)
         executor.add_node(node)
         _SPINNING.set()
         try:
             while not _SIGNALLED.is_set() and executor.context.ok():
-                executor.spin_once()
+                executor.spin_once(timeout_sec=SIGNAL_POLL_S)
         finally:
             executor.remove_node(node)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -549,6 +556,20 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def new_executor(node: Node) -> Executor:
+    """The executor the node's `executor` parameter names: rclpy's standard one, or its EventsExecutor, which
+    waits and dispatches in C++ instead of rebuilding a wait set of every entity in Python on each wake."""
+    if isinstance(node, StereoIONode) and node.parameters.settings.options.executor == "events":
+        try:
+            from rclpy.experimental.events_executor import EventsExecutor
+        except ImportError:  # an rclpy older than the EventsExecutor (the Jazzy wheels have it)
+            node.get_logger().warning("executor:=events: this rclpy has no EventsExecutor; running the standard one")
+        else:
+            node.get_logger().info("executor: rclpy's EventsExecutor (executor:=events)")
+            return EventsExecutor()
+    return rclpy.get_global_executor()
 
 
 def exit_quietly_on_signals() -> None:
