@@ -1,8 +1,8 @@
 """`stereo-depth compile`: build the numba kernels' machine code ahead (the census_sgm core, the temporal
 filter, the compressedDepth RVL codec), so no first frame waits for it.
 
-numba compiles the core on its first use (~30 s once per install, cached afterwards). Run this once after
-installing (or in a robot image's build step); it prints where the cache went.
+numba compiles the core on its first use (once per install, 30 s to two minutes; cached afterwards). Run
+this once after installing (or in a robot image's build step); it prints where the cache went.
 """
 
 from __future__ import annotations

@@ -530,13 +530,12 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
                 f"Fast DDS: large-message profile {profile} for this process (no profile was exported); see "
                 'README "Inputs and outputs over DDS"'
             )
-        # The signal handler runs between two bytecodes of this thread: something must wake the spin, also in
-        # a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
-        node.create_timer(SIGNAL_POLL_S, lambda: None)
         executor = new_executor(node)
         executor.add_node(node)
         _SPINNING.set()
         try:
+            # The signal handler runs between two bytecodes of this thread: the wait must return now and then,
+            # also in a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
             while not _SIGNALLED.is_set() and executor.context.ok():
                 executor.spin_once(timeout_sec=SIGNAL_POLL_S)
         finally:
