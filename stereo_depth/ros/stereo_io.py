@@ -508,7 +508,7 @@ def timed(stages: dict[str, float], name: str, start: float) -> None:
     stages[name] = (time.perf_counter() - start) * 1000.0
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+def run_node(factory: Callable[[], StereoIONode], args: list[str] | None = None) -> int:
     """rclpy Jazzy's main(). SIGINT / SIGTERM end the spin loop below, or raise SystemExit(0) during
     start-up (`exit_quietly_on_signals`), so the `finally` below stops the worker and destroys the node
     before the process ends with 0.
@@ -521,7 +521,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     except RuntimeError as exc:  # rcl's error (unreadable --params-file, malformed --ros-args) is one
         rclpy.logging.get_logger("stereo_depth").error(f"cannot start: {_rcl_reason(exc)}")
         return 2
-    node: Node | None = None
+    node: StereoIONode | None = None
     code = 0
     try:
         node = factory()
@@ -557,10 +557,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     return code
 
 
-def new_executor(node: Node) -> Executor:
+def new_executor(node: StereoIONode) -> Executor:
     """The executor the node's `executor` parameter names: rclpy's standard one, or its EventsExecutor, which
     waits and dispatches in C++ instead of rebuilding a wait set of every entity in Python on each wake."""
-    if isinstance(node, StereoIONode) and node.parameters.settings.options.executor == "events":
+    if node.parameters.settings.options.executor == "events":
         try:
             from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # an rclpy older than the EventsExecutor (the Jazzy wheels have it)
