@@ -189,6 +189,8 @@ def performance(run: Run) -> bool:
     ok = run.bench("pipeline_stages.py", quick=("--repeat", "2")) and ok
     print("\nThe census core against SGBM 3-way at three SIMD levels, interleaved (`bench/simd_match_ratio.py`):\n")
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
+    print("\nWhere the census core's time goes, step by step (`bench/census_steps.py`):\n")
+    ok = run.bench("census_steps.py", quick=("--repeat", "2")) and ok
     print("\nBM after the cores sat idle (`bench/idle_gap.py`):\n")
     ok = run.bench("idle_gap.py", quick=("--frames", "10", "--rounds", "1")) and ok
     print("\nPublishing points2 while the next frame is matched (`bench/serialized_publish.py`):\n")

@@ -14,6 +14,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,8 @@ import numpy as np
 import pytest
 
 from stereo_depth.core import temporal
-from stereo_depth.core.census_sgm import census_sgm, compile_kernels, fill_holes
-from stereo_depth.core.matching import create_matcher
+from stereo_depth.core.census_sgm import STEPS, census_sgm, compile_kernels, fill_holes
+from stereo_depth.core.matching import CensusSGMMatcher, create_matcher
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
 from stereo_depth.formats.scenes import load_scene as read_scene
@@ -240,6 +241,22 @@ def test_fill_holes_background_wins_in_a_row_gap() -> None:
     disp = np.array([[10.0, np.nan, np.nan, 30.0]], np.float32)
     left = np.full((1, 4), 100, np.uint8)
     np.testing.assert_array_equal(fill_holes(disp, left, radius=0), [[10.0, 10.0, 10.0, 30.0]])
+
+
+def test_the_matcher_reports_each_step_and_the_steps_account_for_its_time() -> None:
+    """bench/census_steps.py reads these: every step of census_sgm, none counted twice or left out."""
+    left, right, _, _, nd = load_scene("cones")
+    matcher = create_matcher(dataclasses.replace(PROFILE, disparity_range=nd))
+    assert isinstance(matcher, CensusSGMMatcher)
+    matcher.compute(left, right)  # loads the kernels
+    start = time.perf_counter()
+    matcher.compute(left, right)
+    call_ms = (time.perf_counter() - start) * 1000.0
+    steps = matcher.step_ms
+    assert tuple(steps) == STEPS
+    assert all(ms >= 0.0 for ms in steps.values())
+    # the steps lie inside the call and fill most of it (a lower bound loose enough for a preempted thread)
+    assert 0.5 * call_ms <= sum(steps.values()) <= call_ms
 
 
 def test_min_disparity_shifts_the_answer() -> None:

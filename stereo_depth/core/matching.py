@@ -193,6 +193,7 @@ class CensusSGMMatcher:
 
     def __init__(self, params: StereoParams) -> None:
         self._params = params
+        self.step_ms: dict[str, float] = {}  # the last frame's time per step of census_sgm
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
         from stereo_depth.core.census_sgm import census_sgm
@@ -211,6 +212,7 @@ class CensusSGMMatcher:
             speckle_size=p.speckle_size,
             speckle_range=p.speckle_range,
             paths=p.census_paths,
+            timings=self.step_ms,
         )
         return MatchResult(disparity, confidence)
 

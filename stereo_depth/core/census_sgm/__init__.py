@@ -21,6 +21,7 @@ closing, median, speckles) and ``fill`` (``fill_holes``); ``census_sgm`` below r
 from __future__ import annotations
 
 import itertools
+import time
 
 import numpy as np
 
@@ -57,6 +58,7 @@ def census_sgm(
     occlusion_margin: int = 2,
     border_margin: int = 1,
     gap_confidence: float = 0.2,
+    timings: dict[str, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Census + SGM disparity of a rectified pair.
 
@@ -91,9 +93,12 @@ def census_sgm(
 
     Filled pixels get confidence ``gap_confidence``. ``gap_max`` 0 disables interpolation,
     a negative ``occlusion_margin`` / ``border_margin`` disables those fills.
+
+    ``timings``, when given, receives each step's milliseconds (``STEPS``; bench/census_steps.py).
     """
     _check_inputs(left, right, min_disparity, num_disparities, window_size, census_size, paths)
     compile_all()
+    start = time.perf_counter()
     left = np.ascontiguousarray(left)  # a crop or a view would make numba compile another variant
     ch, cw = census_size
     cl = transform._census(transform._pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
@@ -101,6 +106,7 @@ def census_sgm(
         transform._census(transform._pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1]
     )  # see _hamming_pixel
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: costs computed where the paths need them
+    start = _lap(timings, "census", start)
     shift, p1, p2 = cost_shift(ch * cw - 1, window_size, P1, P2)
     vol, acc = aggregation._workspace(left.shape, int(num_disparities))  # 5 paths, window 1: left untouched
     if window_size > 1:
@@ -114,12 +120,28 @@ def census_sgm(
         disp, conf = aggregation._aggregate_select(
             vol, census, shift, left, acc, p1, p2, float(p2_gamma), paths, select
         )
+    start = _lap(timings, "costs, paths and selection", start)
     if median:
         disp = postprocess._median3(disp, aggregation.HOLE)
+    start = _lap(timings, "median", start)
     if speckle_size > 0:
         postprocess._remove_speckles(disp, speckle_size, speckle_range)
+    start = _lap(timings, "speckles", start)
     gaps = (int(gap_max), np.float32(gap_tol), int(occlusion_margin), int(border_margin), np.float32(gap_confidence))
-    return postprocess._finish(disp, conf, aggregation.HOLE, gaps), conf
+    disp = postprocess._finish(disp, conf, aggregation.HOLE, gaps)
+    _lap(timings, "gap closing", start)
+    return disp, conf
+
+
+STEPS = ("census", "costs, paths and selection", "median", "speckles", "gap closing")  # census_sgm's ``timings``
+
+
+def _lap(timings: dict[str, float] | None, step: str, start: float) -> float:
+    """Record the ms since ``start`` as ``step`` in ``timings`` (if given); returns now."""
+    now = time.perf_counter()
+    if timings is not None:
+        timings[step] = (now - start) * 1000.0
+    return now
 
 
 def compile_kernels() -> str:
