@@ -22,6 +22,7 @@ import argparse
 import fcntl
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -191,6 +192,11 @@ def performance(run: Run) -> bool:
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
     print("\nWhere the census core's time goes, step by step (`bench/census_steps.py`):\n")
     ok = run.bench("census_steps.py", quick=("--repeat", "2")) and ok
+    print("\nInside the census core's fused kernel, by kind of inner loop (`bench/kernel_profile.py`):\n")
+    if shutil.which("perf") and shutil.which("objdump"):
+        ok = run.bench("kernel_profile.py", quick=("--frames", "2")) and ok
+    else:
+        print("(skipped: needs Linux perf and objdump)")
     print("\nBM after the cores sat idle (`bench/idle_gap.py`):\n")
     ok = run.bench("idle_gap.py", quick=("--frames", "10", "--rounds", "1")) and ok
     print("\nPublishing points2 while the next frame is matched (`bench/serialized_publish.py`):\n")

@@ -1,0 +1,158 @@
+"""Where the census core's fused kernel spends its time, by kind of inner loop (needs Linux `perf` and `objdump`).
+
+numba's machine code has no symbols perf can read, so this runs census_sgm (the `quality` profile's
+settings, `--paths`, the rectified 640x480 EuRoC pair, 128 disparities) for `--frames` frames in a child
+process under `perf record`; the child then copies every anonymous executable mapping (the JIT code) to a
+file. The parent maps perf's samples onto those copies, disassembles them (`objdump -b binary`), finds the
+innermost loops (a backward jump over fewer than 600 bytes) and sorts each loop's samples by the
+instructions it is made of:
+
+  * Hamming costs: a popcount (PSHUFB nibble table + PSADBW, POPCNT, or VPOPCNTQ);
+  * path updates: unsigned byte minima (PMINUB), the SGM recurrence on uint8 path costs;
+  * sums S: byte-to-word widening adds (PMOVZXBW + PADDW), the paths' costs added per pixel;
+  * selection: unsigned word minima (PMINUW), the winner search on S;
+  * other loops, and code outside the inner loops.
+
+Shares of the samples in the JIT code (the census core's kernels; OpenCV and Python are left out).
+Set the `--simd` variables of bench/readme_figures.py to see another SIMD level.
+
+    .venv/bin/python bench/kernel_profile.py [--paths 6 5] [--frames 20] [--markdown]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import ctypes
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from markdown_table import parse_bench_arguments, table_header, table_row
+
+KINDS = (  # (name, instructions that mark it), checked in this order
+    ("Hamming costs", ("psadbw", "popcnt")),
+    ("selection", ("pminuw",)),
+    ("path updates", ("pminub",)),
+    ("sums S", ("pmovzxbw",)),
+)
+INNER_LOOP_BYTES = 600
+
+
+def child(paths: int, frames: int, out: Path) -> None:
+    """Run the frames, then copy the JIT code (anonymous r-x mappings) to `out`/<start address hex>.bin."""
+    from census_steps import rectified_pair
+
+    from stereo_depth.core.census_sgm import census_sgm
+
+    left, right = rectified_pair()
+    for _ in range(frames + 1):  # the first loads or compiles the kernels
+        census_sgm(
+            left,
+            right,
+            min_disparity=0,
+            num_disparities=128,
+            window_size=1,
+            P1=20,
+            P2=200,
+            uniqueness_ratio=3,
+            disp12_max_diff=1,
+            paths=paths,
+        )
+    for line in Path("/proc/self/maps").read_text().splitlines():
+        fields = line.split()
+        if fields[1].startswith("r-x") and len(fields) == 5:
+            start, end = (int(x, 16) for x in fields[0].split("-"))
+            (out / f"{start:x}.bin").write_bytes(ctypes.string_at(start, end - start))
+
+
+def instructions(code: Path) -> list[tuple[int, str]]:
+    """(offset, instruction) of a JIT code copy, as objdump disassembles it."""
+    listing = subprocess.run(
+        ["objdump", "-D", "-b", "binary", "-m", "i386:x86-64", "--no-show-raw-insn", str(code)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    matches = (re.match(r"\s+([0-9a-f]+):\s+(.*)", line) for line in listing.splitlines())
+    return [(int(m.group(1), 16), m.group(2)) for m in matches if m]
+
+
+def kind_of(loop: list[str]) -> str:
+    mnemonics = " ".join(instruction.split()[0] for instruction in loop if instruction.split())
+    return next((name for name, marks in KINDS if any(mark in mnemonics for mark in marks)), "other loops")
+
+
+def shares(samples: collections.Counter[tuple[Path, int]], codes: list[Path]) -> dict[str, float]:
+    """Share of the JIT samples per kind of innermost loop."""
+    by_kind: collections.Counter[str] = collections.Counter()
+    for code in codes:
+        listing = instructions(code)
+        counted: set[int] = set()
+        ends: dict[int, int] = {}  # loop header -> its last backward jump (a loop may have several latches)
+        for offset, instruction in listing:
+            jump = re.match(r"j\w+\s+0x([0-9a-f]+)", instruction)
+            if jump and offset - INNER_LOOP_BYTES < int(jump.group(1), 16) < offset:
+                header = int(jump.group(1), 16)
+                ends[header] = max(ends.get(header, offset), offset)
+        for start, end in sorted(ends.items(), key=lambda loop: loop[1] - loop[0]):  # innermost first
+            body = [(o, i) for o, i in listing if start <= o <= end and o not in counted]
+            by_kind[kind_of([i for _, i in body])] += sum(samples[(code, o)] for o, _ in body)
+            counted.update(o for o, _ in body)
+        by_kind["outside inner loops"] += sum(n for (c, o), n in samples.items() if c == code and o not in counted)
+    total = sum(by_kind.values())
+    return {name: n / total for name, n in by_kind.items()} if total else {}
+
+
+def profile(paths: int, frames: int) -> dict[str, float]:
+    with tempfile.TemporaryDirectory() as folder:
+        work = Path(folder)
+        data = work / "perf.data"
+        command = [sys.executable, __file__, "--child", str(paths), "--frames", str(frames), "--out", str(work)]
+        subprocess.run(["perf", "record", "-q", "-o", str(data), "--", *command], check=True)
+        ips = subprocess.run(
+            ["perf", "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True, check=True
+        )
+        codes = sorted(work.glob("*.bin"))
+        ranges = [(int(code.stem, 16), int(code.stem, 16) + code.stat().st_size, code) for code in codes]
+        samples: collections.Counter[tuple[Path, int]] = collections.Counter()
+        for line in ips.stdout.split():
+            ip = int(line, 16)
+            for start, end, code in ranges:
+                if start <= ip < end:
+                    samples[(code, ip - start)] += 1
+                    break
+        return shares(samples, codes)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--paths", type=int, nargs="+", default=[6, 5])
+    parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
+    if "--child" in sys.argv:
+        args = parser.parse_args()
+        child(args.child, args.frames, args.out)
+        return
+    args = parse_bench_arguments(parser)
+    missing = [tool for tool in ("perf", "objdump") if shutil.which(tool) is None]
+    if missing:
+        raise SystemExit(f"kernel_profile.py needs {' and '.join(missing)} (Linux perf, binutils)")
+    runs = {paths: profile(paths, args.frames) for paths in args.paths}
+    names = [name for name, _ in KINDS] + ["other loops", "outside inner loops"]
+    columns = ("part of the kernel", *(f"{paths} paths" for paths in args.paths))
+    print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames; {time.strftime('%Y-%m-%d')}")
+    print(table_header(columns) if args.markdown else "  ".join(columns))
+    for name in names:
+        row = (name, *(f"{100 * runs[p].get(name, 0.0):.0f}%" for p in args.paths))
+        print(table_row(row) if args.markdown else "  ".join(row))
+
+
+if __name__ == "__main__":
+    main()
