@@ -21,11 +21,9 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from stereo_depth.core.census_sgm import STEPS, aggregation
-from stereo_depth.core.census_sgm import census as transform
+from stereo_depth.core.census_sgm import STEPS, aggregation, census
 from stereo_depth.core.matching import CensusSGMMatcher, create_matcher
 from stereo_depth.core.params import make_params
 
@@ -42,14 +40,12 @@ BASELINE = "default: OpenCV SGBM 3-way, whole match"
 
 def rectified_pair() -> tuple[np.ndarray, np.ndarray]:
     left, right, camera = load_pair(640, 480)
-    ml, mr = camera.rectification_maps("left"), camera.rectification_maps("right")
-    return cv2.remap(left, ml[0], ml[1], cv2.INTER_LINEAR), cv2.remap(right, mr[0], mr[1], cv2.INTER_LINEAR)
+    return camera.rectify(left, "left"), camera.rectify(right, "right")
 
 
 def costs_alone(left: np.ndarray, right: np.ndarray, disparities: int) -> float:
-    """ms of the Hamming cost volume of the pair (the quality profile's 7x9 census), census not included."""
-    cl = transform._census(transform._pad(left, 3, 4), 3, 4)
-    cr = np.ascontiguousarray(transform._census(transform._pad(right, 3, 4), 3, 4)[:, ::-1])
+    """ms of the Hamming cost volume of the pair (the quality profile's census), census not included."""
+    cl, cr = census.census_pair(left, right, census.CENSUS_SIZE)
     volume, _ = aggregation._workspace(left.shape, disparities)
     start = time.perf_counter()
     aggregation._hamming_volume(cl, cr, 0, volume)
@@ -64,12 +60,12 @@ def main() -> None:
     left, right = rectified_pair()
     nd = args.disparity_range
     baseline = create_matcher(make_params("default", {"disparity_range": nd}))
-    census: dict[int, CensusSGMMatcher] = {}
+    matchers: dict[int, CensusSGMMatcher] = {}
     for paths in PATHS:
         matcher = create_matcher(make_params("quality", {"disparity_range": nd, "census_paths": paths}))
         assert isinstance(matcher, CensusSGMMatcher)
-        census[paths] = matcher
-    for matcher in (baseline, *census.values()):  # compiles or loads the kernels, warms the caches
+        matchers[paths] = matcher
+    for matcher in (baseline, *matchers.values()):  # compiles or loads the kernels, warms the caches
         matcher.compute(left, right)
     costs_alone(left, right, nd)
     runs: dict[str, list[float]] = {}
@@ -80,7 +76,7 @@ def main() -> None:
         runs.setdefault(BASELINE, []).append((time.perf_counter() - start) * 1000.0)
         time.sleep(IDLE_S)
         runs.setdefault(COSTS_ALONE, []).append(costs_alone(left, right, nd))
-        for paths, matcher in census.items():
+        for paths, matcher in matchers.items():
             time.sleep(IDLE_S)
             matcher.compute(left, right)
             for step in STEPS:

@@ -1,7 +1,7 @@
 """Where the census core's fused kernel spends its time, by kind of inner loop (needs Linux `perf` and `objdump`).
 
-numba's machine code has no symbols perf can read, so this runs census_sgm (the `quality` profile's
-settings, `--paths`, the rectified 640x480 EuRoC pair, 128 disparities) for `--frames` frames in a child
+numba's machine code has no symbols perf can read, so this runs the `quality` profile's matcher (census_sgm,
+`--paths`, the rectified 640x480 EuRoC pair, 128 disparities) for `--frames` frames in a child
 process under `perf record`; the child then copies every anonymous executable mapping (the JIT code) to a
 file. The parent maps perf's samples onto those copies, disassembles them (`objdump -b binary`), finds the
 innermost loops (a backward jump over fewer than 600 bytes) and sorts each loop's samples by the
@@ -48,22 +48,13 @@ def child(paths: int, frames: int, out: Path) -> None:
     """Run the frames, then copy the JIT code (anonymous r-x mappings) to `out`/<start address hex>.bin."""
     from census_steps import rectified_pair
 
-    from stereo_depth.core.census_sgm import census_sgm
+    from stereo_depth.core.matching import create_matcher
+    from stereo_depth.core.params import make_params
 
     left, right = rectified_pair()
+    matcher = create_matcher(make_params("quality", {"disparity_range": 128, "census_paths": paths}))
     for _ in range(frames + 1):  # the first loads or compiles the kernels
-        census_sgm(
-            left,
-            right,
-            min_disparity=0,
-            num_disparities=128,
-            window_size=1,
-            P1=20,
-            P2=200,
-            uniqueness_ratio=3,
-            disp12_max_diff=1,
-            paths=paths,
-        )
+        matcher.compute(left, right)
     for line in Path("/proc/self/maps").read_text().splitlines():
         fields = line.split()
         if fields[1].startswith("r-x") and len(fields) == 5:

@@ -45,7 +45,7 @@ def census_sgm(
     P2: float,
     uniqueness_ratio: float,
     disp12_max_diff: int,
-    census_size: tuple[int, int] = (7, 9),
+    census_size: tuple[int, int] = transform.CENSUS_SIZE,
     p2_gamma: float = 4.0,
     paths: int = 6,
     median: bool = True,
@@ -100,14 +100,10 @@ def census_sgm(
     compile_all()
     start = time.perf_counter()
     left = np.ascontiguousarray(left)  # a crop or a view would make numba compile another variant
-    ch, cw = census_size
-    cl = transform._census(transform._pad(left, ch // 2, cw // 2), ch // 2, cw // 2)
-    cr = np.ascontiguousarray(
-        transform._census(transform._pad(right, ch // 2, cw // 2), ch // 2, cw // 2)[:, ::-1]
-    )  # see _hamming_pixel
+    cl, cr = transform.census_pair(left, right, census_size)
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: costs computed where the paths need them
     start = _lap(timings, "census", start)
-    shift, p1, p2 = cost_shift(ch * cw - 1, window_size, P1, P2)
+    shift, p1, p2 = cost_shift(census_size[0] * census_size[1] - 1, window_size, P1, P2)
     vol, acc = aggregation._workspace(left.shape, int(num_disparities))  # 5 paths, window 1: left untouched
     if window_size > 1:
         aggregation._hamming_volume(cl, cr, int(min_disparity), vol)

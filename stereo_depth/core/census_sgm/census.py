@@ -12,6 +12,14 @@ import numpy as np
 from stereo_depth.core.census_sgm.registry import kernel as _kernel
 
 prange = range  # replaced by numba.prange before any kernel is compiled (registry.compile_all)
+CENSUS_SIZE = (7, 9)  # (height, width): 62 bits
+
+
+def census_pair(left: np.ndarray, right: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The census images of a pair, the right one reversed along its rows (see aggregation._hamming_pixel)."""
+    half_h, half_w = size[0] // 2, size[1] // 2
+    cl = _census(_pad(left, half_h, half_w), half_h, half_w)
+    return cl, np.ascontiguousarray(_census(_pad(right, half_h, half_w), half_h, half_w)[:, ::-1])
 
 
 @_kernel(parallel=True)
