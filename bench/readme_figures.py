@@ -199,6 +199,8 @@ def performance(run: Run) -> bool:
         print("(skipped: needs Linux perf and objdump)")
     print("\nBM after the cores sat idle (`bench/idle_gap.py`):\n")
     ok = run.bench("idle_gap.py", quick=("--frames", "10", "--rounds", "1")) and ok
+    print("\nWhat one wake of rclpy's executor costs the node (`bench/executor_wake.py`):\n")
+    ok = run.bench("executor_wake.py", quick=("--batches", "2")) and ok
     print("\nPublishing points2 while the next frame is matched (`bench/serialized_publish.py`):\n")
     ok = run.bench("serialized_publish.py", quick=("--frames", "5")) and ok
     print("\nPage faults and time per frame, freed memory kept or not (`bench/page_faults.py`):\n")

@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 from rclpy.qos import ReliabilityPolicy
-from ros_helpers import NodeProcess, RosHarness, wait_until
+from ros_helpers import NodeProcess, RosHarness, reliable_qos, wait_until
 from sensor_msgs.msg import Image
+from stereo_msgs.msg import DisparityImage
 
 NS = "/qos"
 SPLIT = "/qos_split"
@@ -122,6 +123,21 @@ def test_an_override_for_no_topic_of_the_node_is_named_once_with_the_closest_one
     assert len(lines) == 1 and "WARN" in lines[0]
     assert f"'{OVERRIDES}.{NS}/point2.publisher.reliability' (did you mean '" in lines[0]
     assert f"{NS}/points2.publisher.reliability'?)" in lines[0]
+
+
+def test_a_subscriber_an_output_cannot_serve_is_warned_about_once_with_the_policy(
+    ros: RosHarness, node: NodeProcess
+) -> None:
+    """disparity is best effort here, so a reliable subscriber gets nothing: the node says so, as rclpy's
+    default handler would, and nothing else about it (our outputs carry only that one event handler)."""
+    subscription = ros.node.create_subscription(DisparityImage, f"{NS}/disparity", lambda _msg: None, reliable_qos(1))
+    try:
+        wait_until(lambda: "requesting incompatible QoS" in node.output(), "the incompatible-QoS warning")
+        lines = [line for line in node.output().splitlines() if "requesting incompatible QoS" in line]
+        assert len(lines) == 1 and "WARN" in lines[0], lines
+        assert f"topic '{NS}/disparity'" in lines[0] and "Last incompatible policy: RELIABILITY" in lines[0]
+    finally:
+        ros.node.destroy_subscription(subscription)
 
 
 def test_an_override_value_rclpy_cannot_apply_stops_the_node_with_the_reason(

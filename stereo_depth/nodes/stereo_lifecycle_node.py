@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
@@ -29,10 +30,17 @@ class StereoLifecycleNode(StereoNode, LifecycleNode):
         self.get_logger().info("unconfigured: parameters declared; waiting for configure")
 
     def create_output(
-        self, msg_type: Any, topic: str, qos: QoSProfile | int, overriding: QoSOverridingOptions
+        self,
+        msg_type: Any,
+        topic: str,
+        qos: QoSProfile | int,
+        overriding: QoSOverridingOptions,
+        events: PublisherEventCallbacks,
     ) -> Publisher:
         """Publishes only while the node is active."""
-        publisher: Publisher = self.create_lifecycle_publisher(msg_type, topic, qos, qos_overriding_options=overriding)
+        publisher: Publisher = self.create_lifecycle_publisher(
+            msg_type, topic, qos, qos_overriding_options=overriding, event_callbacks=events
+        )
         return publisher
 
     def destroy_output(self, publisher: Publisher) -> None:

@@ -25,6 +25,7 @@ from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
@@ -49,7 +50,13 @@ from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog, error_key
-from stereo_depth.ros.qos import AdaptiveSubscription, output_qos, override_errors, unused_overrides_line
+from stereo_depth.ros.qos import (
+    AdaptiveSubscription,
+    output_events,
+    output_qos,
+    override_errors,
+    unused_overrides_line,
+)
 from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet, Synchronizer
@@ -255,15 +262,22 @@ class StereoIONode(Node):
         """A publisher with our output QoS (or history `depth`), which the user's qos_overrides amend."""
         qos = output_qos() if depth is None else depth
         with override_errors():
-            publisher = self.create_output(msg_type, topic, qos, QoSOverridingOptions.with_default_policies())
+            publisher = self.create_output(
+                msg_type, topic, qos, QoSOverridingOptions.with_default_policies(), output_events(self, topic)
+            )
         self._outputs.append(publisher)
         return publisher
 
     def create_output(
-        self, msg_type: Any, topic: str, qos: QoSProfile | int, overriding: QoSOverridingOptions
+        self,
+        msg_type: Any,
+        topic: str,
+        qos: QoSProfile | int,
+        overriding: QoSOverridingOptions,
+        events: PublisherEventCallbacks,
     ) -> Publisher:
         """A plain publisher; the lifecycle node makes it a lifecycle publisher."""
-        return self.create_publisher(msg_type, topic, qos, qos_overriding_options=overriding)
+        return self.create_publisher(msg_type, topic, qos, qos_overriding_options=overriding, event_callbacks=events)
 
     def destroy_output(self, publisher: Publisher) -> None:
         self.destroy_publisher(publisher)
