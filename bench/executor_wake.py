@@ -4,9 +4,10 @@ default event handlers.
 Each time the executor wakes (an input message, a timer) it rebuilds its wait set in Python from every
 subscription, timer, service, guard condition and QoS-event handler of the node, holding the GIL, and a
 frame wakes it about three times. rclpy gives every publisher two event handlers unless told otherwise;
-stereo_node's outputs carry one (stereo_depth/ros/qos.py: output_events). The twin node here has the same
-publishers, subscriptions (with stereo_node's own subscription events) and timers, with rclpy's defaults
-on the publishers: the baseline, in the same process and run. Each is timed alone with an executor of its
+stereo_node's outputs carry one (stereo_depth/ros/qos.py: output_events) and its inputs two (lost messages,
+a publisher of another type; AdaptiveSubscription polls for publishers instead). The twin node here has the
+same publishers, subscriptions and timers with rclpy's default handlers, plus the lost-message one on each
+subscription: the baseline, in the same process and run. Each is timed alone with an executor of its
 own, `spin_once(timeout_sec=0)` with nothing ready, in alternating batches; the medians are printed.
 
     .venv/bin/python bench/executor_wake.py [--batches 10] [--spins 200] [--markdown]
@@ -40,9 +41,7 @@ def twin_with_rclpy_defaults(node: Node) -> Node:
         if not publisher.topic_name.endswith("/parameter_events"):  # every node has its own
             twin.create_publisher(publisher.msg_type, f"/twin{publisher.topic_name}", publisher.qos_profile)
     for subscription in node.subscriptions:
-        events = SubscriptionEventCallbacks(  # as AdaptiveSubscription's
-            matched=lambda _info: None, incompatible_qos=lambda _info: None, message_lost=lambda _info: None
-        )
+        events = SubscriptionEventCallbacks(message_lost=lambda _info: None)  # and rclpy's defaults
         twin.create_subscription(
             subscription.msg_type,
             f"/twin{subscription.topic_name}",

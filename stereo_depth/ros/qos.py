@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from rclpy.event_handler import (
+    IncompatibleTypeInfo,
     PublisherEventCallbacks,
     QoSMessageLostInfo,
     QoSOfferedIncompatibleQoSInfo,
@@ -58,9 +59,8 @@ def output_events(node: Node, topic: str) -> PublisherEventCallbacks:
 
     rclpy gives each publisher two handlers by default, this one and one for a subscriber of another
     type, which that subscriber's own node reports. Its standard executor rebuilds the wait set from
-    every handler in Python each time it wakes, holding the GIL: with 11 publishers and 4
-    subscriptions the node's 38 handlers made each wake cost ~0.7 ms on a 2-core AMD EPYC (Zen 1),
-    ~0.55 ms with one handler per output, and it wakes about three times a frame.
+    every handler in Python each time it wakes, holding the GIL, about three times a frame
+    (bench/executor_wake.py).
     """
 
     def warn(event: QoSOfferedIncompatibleQoSInfo) -> None:
@@ -102,7 +102,10 @@ class AdaptiveSubscription:
 
     Created at start-up (so `ros2 node info` lists it) as reliable, the common default for publishers;
     `recheck()` recreates it when the publishers' offer calls for the other reliability. The node calls
-    `recheck()` from a timer, and the matched / incompatible-QoS events make it happen at once.
+    `recheck()` from a timer, and within QOS_RECHECK_S when `publishers_changed()` (a publisher came or
+    went). That is polled, not evented: each event handler costs every wake of rclpy's executor (see
+    `output_events`), and a count of the topic's publishers catches the matched and the incompatible ones
+    alike. The subscription carries two handlers: lost messages (counted) and a publisher of another type.
     The policies the user overrode (`qos_overrides.<topic>.subscription.*`) are applied to every
     recreation; a reliability override replaces the adaptive rule for this topic.
     """
@@ -125,7 +128,7 @@ class AdaptiveSubscription:
         self._policy = policy
         self._depth = depth
         self._on_lost = on_lost
-        self.recheck_requested = False
+        self._publishers = -1  # the topic's publisher count at the last look; -1: not looked yet
         self._overridden = given_overrides(node, self.topic, "subscription")
         self.reliability = choose_reliability(policy, [], ReliabilityPolicy.RELIABLE)
         # The first subscription of this topic declares its override parameters (and rclpy checks the values
@@ -142,9 +145,7 @@ class AdaptiveSubscription:
 
     def _create(self, overridable: Iterable[QoSPolicyKind] = ()) -> Any:
         events = SubscriptionEventCallbacks(
-            matched=lambda _info: self._request_recheck(),
-            incompatible_qos=lambda _info: self._request_recheck(),
-            message_lost=self._lost,
+            message_lost=self._lost, incompatible_type=self._wrong_type, use_default_callbacks=False
         )
         with override_errors():
             return self._node.create_subscription(
@@ -156,8 +157,14 @@ class AdaptiveSubscription:
                 qos_overriding_options=QoSOverridingOptions([*overridable, *self._overridden]),
             )
 
-    def _request_recheck(self) -> None:
-        self.recheck_requested = True
+    def publishers_changed(self) -> bool:
+        """Whether the topic's publisher count moved since the last look."""
+        count = self._node.count_publishers(self.topic)
+        changed, self._publishers = count != self._publishers, count
+        return changed
+
+    def _wrong_type(self, _info: IncompatibleTypeInfo) -> None:
+        self._node.get_logger().warning(f"Incompatible type on topic '{self.topic}', no messages will be sent to it.")
 
     def _lost(self, info: QoSMessageLostInfo) -> None:
         self._on_lost(int(info.total_count_change))
@@ -172,7 +179,6 @@ class AdaptiveSubscription:
         self.recheck(force=changed)
 
     def recheck(self, *, force: bool = False) -> None:
-        self.recheck_requested = False
         offered = [info.qos_profile.reliability for info in self._node.get_publishers_info_by_topic(self.topic)]
         wanted = choose_reliability(self._effective(self._policy), offered, self.reliability)
         if wanted == self.reliability and not force:

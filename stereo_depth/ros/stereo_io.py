@@ -62,7 +62,7 @@ from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet, Synchronizer
 
 T = TypeVar("T")
-QOS_RECHECK_S = 0.25  # reaction to a publisher's matched / incompatible-QoS event
+QOS_RECHECK_S = 0.25  # a publisher that came or went (AdaptiveSubscription.publishers_changed) is looked at within this
 QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 # No input for this long: sets waiting only for a camera_info go out. Longer than a reliable writer takes
 # to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
@@ -447,7 +447,7 @@ class StereoIONode(Node):
 
     def _recheck_qos(self, everything: bool) -> None:
         for subscription in self._inputs:
-            if everything or subscription.recheck_requested:
+            if subscription.publishers_changed() or everything:
                 subscription.recheck()
 
     def _run_frame(self, job: tuple[int, int, float, tuple[Any, ...]]) -> None:
