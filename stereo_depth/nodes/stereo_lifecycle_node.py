@@ -14,11 +14,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
-from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from stereo_depth.nodes.stereo_node import StereoNode
 from stereo_depth.ros.stereo_io import run_node
@@ -29,18 +27,9 @@ class StereoLifecycleNode(StereoNode, LifecycleNode):
         super().__init__("stereo_lifecycle_node", managed=True)
         self.get_logger().info("unconfigured: parameters declared; waiting for configure")
 
-    def create_output(
-        self,
-        msg_type: Any,
-        topic: str,
-        qos: QoSProfile | int,
-        overriding: QoSOverridingOptions,
-        events: PublisherEventCallbacks,
-    ) -> Publisher:
+    def create_output(self, msg_type: Any, topic: str, qos: QoSProfile | int, **options: Any) -> Publisher:
         """Publishes only while the node is active."""
-        publisher: Publisher = self.create_lifecycle_publisher(
-            msg_type, topic, qos, qos_overriding_options=overriding, event_callbacks=events
-        )
+        publisher: Publisher = self.create_lifecycle_publisher(msg_type, topic, qos, **options)
         return publisher
 
     def destroy_output(self, publisher: Publisher) -> None:

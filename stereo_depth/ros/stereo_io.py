@@ -25,7 +25,6 @@ from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
@@ -263,21 +262,18 @@ class StereoIONode(Node):
         qos = output_qos() if depth is None else depth
         with override_errors():
             publisher = self.create_output(
-                msg_type, topic, qos, QoSOverridingOptions.with_default_policies(), output_events(self, topic)
+                msg_type,
+                topic,
+                qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                event_callbacks=output_events(self, topic),
             )
         self._outputs.append(publisher)
         return publisher
 
-    def create_output(
-        self,
-        msg_type: Any,
-        topic: str,
-        qos: QoSProfile | int,
-        overriding: QoSOverridingOptions,
-        events: PublisherEventCallbacks,
-    ) -> Publisher:
-        """A plain publisher; the lifecycle node makes it a lifecycle publisher."""
-        return self.create_publisher(msg_type, topic, qos, qos_overriding_options=overriding, event_callbacks=events)
+    def create_output(self, msg_type: Any, topic: str, qos: QoSProfile | int, **options: Any) -> Publisher:
+        """A plain publisher (`options`: create_publisher's); the lifecycle node makes it a lifecycle publisher."""
+        return self.create_publisher(msg_type, topic, qos, **options)
 
     def destroy_output(self, publisher: Publisher) -> None:
         self.destroy_publisher(publisher)
