@@ -166,44 +166,8 @@ def _p2_table(p1: int, p2: int, gamma: float) -> np.ndarray:
     return table
 
 
-@_kernel()
-def _sweep(
-    vol: np.ndarray,
-    census: tuple[np.ndarray, np.ndarray] | None,
-    shift: int,
-    img: np.ndarray,
-    acc: np.ndarray,
-    p2_of: np.ndarray,
-    p1: int,
-    bufs: np.ndarray,
-    mins: np.ndarray,
-    y0: int,
-    y1: int,
-    sy: int,
-    finish: bool,
-    select: tuple[int, float, int, float, float],
-    disp: np.ndarray,
-    conf: np.ndarray,
-) -> None:
-    """``_sweep_rows`` with the disparity count as a constant where it is a common one (64, 128).
-
-    Each call pastes ``_sweep_rows`` in, so a constant count reaches the per-pixel loops over the
-    disparities: LLVM then knows their trip count and drops their run-time set-up (trip-count and
-    remainder handling), which costs about as much as a 128-disparity loop itself (the quality
-    profile's match 0.84-0.86x at 640x480x128 on a Zen 1, bit-identical). Other counts run
-    the same code with the count read from the volume.
-    """
-    nd = vol.shape[2]
-    if nd == 64:
-        _sweep_rows(vol, census, shift, img, acc, p2_of, p1, bufs, mins, y0, y1, sy, finish, select, disp, conf, 64)
-    elif nd == 128:
-        _sweep_rows(vol, census, shift, img, acc, p2_of, p1, bufs, mins, y0, y1, sy, finish, select, disp, conf, 128)
-    else:
-        _sweep_rows(vol, census, shift, img, acc, p2_of, p1, bufs, mins, y0, y1, sy, finish, select, disp, conf, nd)
-
-
 @_kernel(inline=True)
-def _sweep_rows(
+def _sweep(
     vol: np.ndarray,
     census: tuple[np.ndarray, np.ndarray] | None,
     shift: int,
@@ -239,6 +203,12 @@ def _sweep_rows(
     it), and the row is matched at once while it is still in cache. With ``census`` (left, right
     census images) the storing rows fill ``vol[y, x]`` just before the paths of pixel x read it
     (still in L1), and the other sweep reads it back; every cost is stored exactly once.
+
+    ``nd`` is the disparity count, ``vol.shape[2]``. A caller that passes it as a literal (64, 128)
+    gets a copy of this kernel with a constant count: LLVM then knows the trip count of the
+    per-pixel loops over the disparities and drops their run-time set-up (trip-count and remainder
+    handling), which cost about as much as a 128-disparity loop itself (the quality profile's match
+    0.84-0.86x at 640x480x128 on a Zen 1, bit-identical).
     """
     h, w = vol.shape[0], vol.shape[1]
     ndirs = bufs.shape[1]
@@ -505,7 +475,14 @@ def _aggregate_select(
                 y0, y1 = (mid, h) if finish else (0, mid)
             else:
                 y0, y1 = (mid - 1, -1) if finish else (h - 1, mid - 1)
-            _sweep(vol, census, shift, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf)
+            # the common counts as literals: each call pastes in a copy of ``_sweep`` with a constant count
+            b, m = bufs[t], mins[t]
+            if nd == 64:
+                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, 64)
+            elif nd == 128:
+                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, 128)
+            else:
+                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, nd)
     return disp, conf
 
 
