@@ -70,6 +70,8 @@ class NodeProcess:
             try:
                 self.process.wait(timeout=STOP_TIMEOUT_S)
             except subprocess.TimeoutExpired:
+                self.process.send_signal(signal.SIGUSR1)  # run_node's stack dump: where it hangs, in its output
+                time.sleep(1.0)
                 self.process.kill()
                 self.process.wait()
                 note = f"[test: no exit {STOP_TIMEOUT_S:.0f} s after {sig.name}]"

@@ -314,6 +314,35 @@ def test_importing_the_nodes_leaves_signal_handling_alone() -> None:
     assert run.stdout.split() == ["True", "True"], run.stderr
 
 
+@pytest.mark.parametrize("step", ["open_outputs", "start_workers", "_warn_unused_overrides"])
+def test_a_start_up_cut_short_ends_every_thread_and_the_node_it_had_started(
+    context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, step: str
+) -> None:
+    """Ctrl-C during start-up raises SystemExit in the node's __init__ (ros.stereo_io.run_node). Whatever
+    had started by then (the stages' threads, the node in the graph) must end with it, not be left to the
+    interpreter's and Fast DDS's teardown at exit."""
+    from stereo_depth.nodes.stereo_node import StereoNode  # the import leaves signals alone (test above)
+
+    original = getattr(StereoNode, step)
+
+    def cut_short(node: StereoNode) -> None:
+        if step == "start_workers":
+            original(node)  # both stages run: the signal comes while the node subscribes
+        raise SystemExit(0)
+
+    monkeypatch.setattr(StereoNode, step, cut_short)
+    before = set(threading.enumerate())
+    with pytest.raises(SystemExit):
+        StereoNode(context=context)
+    observer = rclpy.create_node("observer", context=context)
+    try:
+        assert ("stereo_node", "/") not in observer.get_node_names_and_namespaces()
+    finally:
+        observer.destroy_node()
+    left = [t.name for t in set(threading.enumerate()) - before if t.is_alive()]
+    assert left == [], left
+
+
 BENCH = Path(__file__).parents[1] / "bench"
 
 

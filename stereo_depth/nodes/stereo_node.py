@@ -106,6 +106,9 @@ class StereoNode(StereoIONode):
     MAX_FRAMES_AT_ONCE = 4
 
     def __init__(self, name: str = "stereo_node", **kwargs: Any) -> None:
+        # started at activation, which a plain node runs inside super().__init__
+        self._cloud_stage: LatestWorker | None = None
+        self._checker: ThreadPoolExecutor | None = None
         super().__init__(name, **kwargs)
 
     def open_outputs(self) -> None:
@@ -113,7 +116,8 @@ class StereoNode(StereoIONode):
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
 
     def start_workers(self) -> None:
-        super().start_workers()
+        """The second stage and the calibration check first: the first stage's start can take seconds
+        (the census core loads), and a signal then must find every thread that `stop_workers` ends."""
         # The calibration check runs beside the depth path, never in it: one at a time, skipped if busy.
         self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
         self._check_idle = threading.Event()
@@ -125,6 +129,7 @@ class StereoNode(StereoIONode):
             self._run_cloud_stage, self.diagnostics.cloud_dropped, options.max_waiting_frames
         )
         self._cloud_stage.budget_s = options.max_latency_ms / 1000.0
+        super().start_workers()
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float] | None:
         """First stage: decode and match (several frames at once with matching_threads); then, in input
@@ -170,6 +175,7 @@ class StereoNode(StereoIONode):
 
     def _queue_cloud_stage(self, stage: Callable[[], None]) -> None:
         received_s = self._frame.received_s  # the frame's receipt, for its outputs' age and latency budget
+        assert self._cloud_stage is not None  # stopped only after the first stage, which calls this
         self._cloud_stage.submit((stage, received_s), received_s)
 
     def _run_cloud_stage(self, job: tuple[Callable[[], None], float]) -> None:
@@ -178,10 +184,9 @@ class StereoNode(StereoIONode):
 
     def _settings_changed(self, settings: Settings) -> None:
         super()._settings_changed(settings)
-        cloud_stage = getattr(self, "_cloud_stage", None)  # None before a lifecycle node's first activate
-        if cloud_stage is not None:
-            cloud_stage.capacity = settings.options.max_waiting_frames
-            cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0
+        if self._cloud_stage is not None:  # None while a lifecycle node is not active
+            self._cloud_stage.capacity = settings.options.max_waiting_frames
+            self._cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0
 
     def _maybe_check_calibration(self, stamp_ns: int, result: StereoResult, options: NodeOptions) -> None:
         self._frames += 1
@@ -191,6 +196,7 @@ class StereoNode(StereoIONode):
             return  # the previous check is still running: skip this one rather than queue
         self._check_idle.clear()
         # copies: the check outlives this frame, whose buffers the next frame may reuse
+        assert self._checker is not None  # stopped only after the first stage, which calls this
         self._checker.submit(self._check_calibration, stamp_ns, result.left_rect.copy(), result.right_rect.copy())
 
     def _check_calibration(self, stamp_ns: int, left_rect: Any, right_rect: Any) -> None:
@@ -201,8 +207,12 @@ class StereoNode(StereoIONode):
 
     def stop_workers(self) -> None:
         super().stop_workers()  # the first stage: nothing new reaches the second
-        self._cloud_stage.stop()
-        self._checker.shutdown(wait=True, cancel_futures=True)
+        if self._cloud_stage is not None:
+            self._cloud_stage.stop()
+            self._cloud_stage = None
+        if self._checker is not None:
+            self._checker.shutdown(wait=True, cancel_futures=True)
+            self._checker = None
 
     def _wanted(self, names: tuple[str, ...], options: NodeOptions) -> frozenset[str]:
         """The outputs switched on (publish_*) that someone listens to: only those are built."""

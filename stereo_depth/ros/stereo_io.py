@@ -13,6 +13,7 @@ OpenCV releases the GIL, so the executor keeps receiving while a frame is proces
 
 from __future__ import annotations
 
+import faulthandler
 import itertools
 import signal
 import threading
@@ -112,8 +113,14 @@ class StereoIONode(Node):
         self._frame = threading.local()  # the sequence number of the set this worker thread processes
         self._overrides_checked = False
         if not managed:
-            self.configure_io()
-            self.activate_io()
+            try:
+                self.configure_io()
+                self.activate_io()
+            except BaseException:
+                # A bad setting, or a signal's SystemExit during start-up: what started so far (worker threads,
+                # DDS entities) ends here, not in the interpreter's and Fast DDS's teardown at process exit.
+                self.destroy_node()
+                raise
 
     # ------------------------------------------------------------ life cycle (a plain node runs all at start)
 
@@ -169,9 +176,7 @@ class StereoIONode(Node):
         for timer in self._io_timers:
             self.destroy_timer(timer)
         self._inputs, self._io_timers = [], []
-        if self._worker is not None:
-            self.stop_workers()
-            self._worker = None
+        self.stop_workers()
         with self._sync_lock:
             self._sync.reset()
 
@@ -475,9 +480,11 @@ class StereoIONode(Node):
 
     def stop_workers(self) -> None:
         """Let the running frame finish and start nothing new; a node with more threads extends this,
-        so that none of them publishes while the node is being destroyed."""
+        so that none of them publishes while the node is being destroyed. Ends what a start-up cut short
+        started, too."""
         if self._worker is not None:
             self._worker.stop()
+            self._worker = None
 
     def destroy_node(self) -> None:
         self.deactivate_io()
@@ -592,6 +599,9 @@ def exit_quietly_on_signals() -> None:
     another thread."""
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _exit_quietly)
+    # `kill -USR1 <pid>`: every thread's Python stack on stderr, from C, also while the main thread is
+    # blocked in a C call and no Python handler can run (a node that does not stop: where is it?)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 
 _SIGNALLED = threading.Event()  # SIGINT / SIGTERM arrived: the process is on its way out
