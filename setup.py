@@ -29,11 +29,11 @@ setup(
     entry_points={
         "console_scripts": [
             "stereo-depth = stereo_depth.cli:main",
-            "stereo_node = stereo_depth.nodes.stereo_node:main",
-            "stereo_lifecycle_node = stereo_depth.nodes.stereo_lifecycle_node:main",
-            "disparity_node = stereo_depth.nodes.disparity_node:main",
-            "point_cloud_node = stereo_depth.nodes.point_cloud_node:main",
-            "rectify_node = stereo_depth.nodes.rectify_node:main",
+            "stereo_node = stereo_depth.nodes.entry_points:stereo_node",
+            "stereo_lifecycle_node = stereo_depth.nodes.entry_points:stereo_lifecycle_node",
+            "disparity_node = stereo_depth.nodes.entry_points:disparity_node",
+            "point_cloud_node = stereo_depth.nodes.entry_points:point_cloud_node",
+            "rectify_node = stereo_depth.nodes.entry_points:rectify_node",
         ],
     },
 )

@@ -28,19 +28,20 @@ TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 60.0  # a node's DDS teardown on a loaded 2-core machine can take seconds
 
 
-def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOUT_S) -> Any:
+def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOUT_S, poll: float = 0.02) -> Any:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = condition()
         if value:
             return value
-        time.sleep(0.02)
+        time.sleep(poll)
     msg = f"timed out after {timeout} s waiting for {what}"
     raise TimeoutError(msg)
 
 
 class NodeProcess:
-    """One node as `python -m stereo_depth.nodes.<module> --ros-args ...`, output kept in a file."""
+    """One node as its console script (`<venv>/bin/<module> --ros-args ...`, what `ros2 run` starts), output
+    kept in a file."""
 
     def __init__(
         self, module: str, namespace: str, env: dict[str, str], log_dir: Path, args: Iterable[str] = ()
@@ -50,7 +51,7 @@ class NodeProcess:
         self.log = log_dir / f"{namespace.strip('/').replace('/', '_')}_{module}.log"
         with self.log.open("wb") as out:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", f"stereo_depth.nodes.{module}", "--ros-args", "-r", f"__ns:={namespace}", *args],
+                [Path(sys.executable).with_name(module), "--ros-args", "-r", f"__ns:={namespace}", *args],
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,

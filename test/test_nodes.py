@@ -551,6 +551,36 @@ def test_signal_ends_every_node_cleanly(
         stop_all(processes, sig)  # asserts exit code 0 and no traceback for each
 
 
+def _catches(pid: int, sig: signal.Signals) -> bool:
+    """Whether process `pid` has a handler for `sig` (its SigCgt mask in /proc)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:  # it has ended: the caller sees that next
+        return False
+    caught = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), 16)
+    return bool(caught >> (sig - 1) & 1)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_at_any_moment_of_start_up_ends_the_node_quietly(
+    ros_env: dict[str, str], tmp_path: Path, sig: signal.Signals
+) -> None:
+    """Ctrl-C (or a launch file's SIGTERM) right after the console script put its handlers in, while the
+    node's modules are still being imported, ends it with exit code 0 before it prints anything; so do
+    signals later in its start-up, without a traceback or an exception printed as ignored (an exception
+    raised inside an import or a callback, where it is swallowed and the node runs on)."""
+    for delay in (0.0, 0.3, 0.8):
+        process = NodeProcess("stereo_node", f"/early_{sig.name.lower()}_{delay * 10:.0f}", ros_env, tmp_path)
+        child = process.process
+        wait_until(lambda c=child: c.poll() is not None or _catches(c.pid, signal.SIGTERM), "handlers", 60.0, 0.001)
+        time.sleep(delay)
+        code, output = process.stop(sig)
+        assert code == 0, output
+        assert "Traceback" not in output and "Exception ignored" not in output, output
+        if delay == 0.0:
+            assert output == "", output  # ended during its imports
+
+
 def test_a_census_node_loads_its_core_before_it_subscribes_its_inputs(ros_env: dict[str, str], tmp_path: Path) -> None:
     """profile:=quality: numba's machine code is loaded at start (compiled first on a fresh install:
     ~30 s), before any input is subscribed, so no frame waits for it; the log says where the time went."""

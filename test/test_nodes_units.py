@@ -318,9 +318,10 @@ def test_importing_the_nodes_leaves_signal_handling_alone() -> None:
 def test_a_start_up_cut_short_ends_every_thread_and_the_node_it_had_started(
     context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, step: str
 ) -> None:
-    """Ctrl-C during start-up raises SystemExit in the node's __init__ (ros.stereo_io.run_node). Whatever
-    had started by then (the stages' threads, the node in the graph) must end with it, not be left to the
-    interpreter's and Fast DDS's teardown at exit."""
+    """Ctrl-C while numba's kernels load at start-up raises SystemExit in the node's __init__
+    (ros/signals.py: interruptible), as may a bad setting its own error. Whatever had started by then
+    (the stages' threads, the node in the graph) must end with it, not be left to the interpreter's and
+    Fast DDS's teardown at exit."""
     from stereo_depth.nodes.stereo_node import StereoNode  # the import leaves signals alone (test above)
 
     original = getattr(StereoNode, step)

@@ -13,15 +13,12 @@ OpenCV releases the GIL, so the executor keeps receiving while a frame is proces
 
 from __future__ import annotations
 
-import faulthandler
 import itertools
-import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
-from types import FrameType
 from typing import Any, TypeVar
 
 import rclpy
@@ -46,6 +43,7 @@ from stereo_depth.formats.camera_info_yaml import read_camera_info_url
 from stereo_depth.frames import InputNames, StereoFrame, camera_fixes, decode_frame, decode_image, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
 from stereo_depth.options import NodeOptions, Settings
+from stereo_depth.ros import signals
 from stereo_depth.ros.diagnostics import NodeDiagnostics
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
@@ -229,10 +227,11 @@ class StereoIONode(Node):
         )
         self._worker.parallel = self.frames_at_once(settings)
         self._worker.budget_s = settings.options.max_latency_ms / 1000.0
-        if settings.output.temporal_filter:
-            compile_kernels()  # the temporal filter's, now rather than on the first frame
-        if settings.stereo is not None and settings.stereo.matcher == "census_sgm":
-            self._load_census_core()
+        with signals.interruptible():  # numba's load or first compile: Ctrl-C need not wait for it
+            if settings.output.temporal_filter:
+                compile_kernels()  # the temporal filter's, now rather than on the first frame
+            if settings.stereo is not None and settings.stereo.matcher == "census_sgm":
+                self._load_census_core()
 
     def _load_census_core(self) -> None:
         """The census core's machine code now, before any input is subscribed, rather than on the first
@@ -526,12 +525,14 @@ def timed(stages: dict[str, float], name: str, start: float) -> None:
 
 
 def run_node(factory: Callable[[], StereoIONode], args: list[str] | None = None) -> int:
-    """rclpy Jazzy's main(). SIGINT / SIGTERM end the spin loop below, or raise SystemExit(0) during
-    start-up (`exit_quietly_on_signals`), so the `finally` below stops the worker and destroys the node
-    before the process ends with 0.
+    """rclpy Jazzy's main(). SIGINT / SIGTERM end the spin loop below, or start-up at its next step
+    (ros/signals.py), and the `finally` below stops the worker and destroys the node before the process
+    ends with 0.
     A node that cannot start (bad --ros-args, --params-file or parameter value) says why in one
     line and exits with 2, rather than run with part of its configuration."""
-    exit_quietly_on_signals()
+    signals.install()
+    if signals.SIGNALLED.is_set():  # during the imports
+        return 0
     profile = use_large_message_profile()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -549,24 +550,24 @@ def run_node(factory: Callable[[], StereoIONode], args: list[str] | None = None)
             )
         executor = new_executor(node)
         executor.add_node(node)
-        _SPINNING.set()
+        signals.SPINNING.set()
         try:
             # The signal handler runs between two bytecodes of this thread: the wait must return now and then,
             # also in a lifecycle state without timers of the node's own (unconfigured, inactive, finalized).
-            while not _SIGNALLED.is_set() and executor.context.ok():
+            while not signals.SIGNALLED.is_set() and executor.context.ok():
                 executor.spin_once(timeout_sec=SIGNAL_POLL_S)
         finally:
             executor.remove_node(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RuntimeError:
-        # The signal's SystemExit raised inside rclpy's C++ code during start-up comes out as pybind11's
-        # RuntimeError ("Unable to convert call argument"): still the signal's exit.
-        if not _SIGNALLED.is_set():
-            raise
     except (StereoDepthError, InvalidParameterValueException, InvalidParameterTypeException) as exc:
         rclpy.logging.get_logger("stereo_depth").error(f"cannot start: {exc}")
         code = 2
+    except Exception:
+        # A signal that cut numba's start-up short (signals.interruptible): its SystemExit can come out of
+        # numba's imports or C calls as another exception. Still the signal's exit.
+        if not signals.SIGNALLED.is_set():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
@@ -586,35 +587,6 @@ def new_executor(node: StereoIONode) -> Executor:
             node.get_logger().info("executor: rclpy's EventsExecutor (executor:=events)")
             return EventsExecutor()
     return rclpy.get_global_executor()
-
-
-def exit_quietly_on_signals() -> None:
-    """Ctrl-C or SIGTERM end a node with exit code 0 and no traceback, whenever they arrive. The handler
-    stays in charge after `rclpy.init` (which is told to install none). During start-up it raises
-    SystemExit between two bytecodes of the main thread, which unwinds through `run_node`'s cleanup.
-    Once the node spins it only sets `_SIGNALLED`, and the spin loop ends within SIGNAL_POLL_S: an
-    exception raised there could land inside rclpy's executor half-way through building a Task, whose
-    `__del__` then prints a traceback ('Task' object has no attribute '_exception'). Either way nothing
-    races rclpy's C code, as rclpy's own SIGTERM handler does when it shuts the context down from
-    another thread."""
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _exit_quietly)
-    # `kill -USR1 <pid>`: every thread's Python stack on stderr, from C, also while the main thread is
-    # blocked in a C call and no Python handler can run (a node that does not stop: where is it?)
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
-
-
-_SIGNALLED = threading.Event()  # SIGINT / SIGTERM arrived: the process is on its way out
-_SPINNING = threading.Event()  # run_node spins: a signal ends the spin loop instead of raising
-
-
-def _exit_quietly(signum: int, frame: FrameType | None) -> None:
-    del signum, frame
-    _SIGNALLED.set()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_IGN)  # a second signal must not interrupt the cleanup
-    if not _SPINNING.is_set():
-        raise SystemExit(0)
 
 
 def _rcl_reason(exc: Exception) -> str:
