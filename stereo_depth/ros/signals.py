@@ -5,9 +5,10 @@ second or more; `run_node` installs them for other ways in (`python -m`), and th
 `rclpy.init` (told to install none). A signal only sets `SIGNALLED`: an exception raised at an arbitrary
 bytecode comes out of an import as an ImportError, is printed and swallowed in a weakref callback or a
 `__del__` (the node then runs on), or lands inside rclpy's C++ calls or its executor half-way through
-building a Task. Start-up looks at the flag between its steps, the spin loop within SIGNAL_POLL_S.
-Only a long start-up step that is safe to cut (`interruptible`: numba's kernels, up to a minute on a
-fresh install) ends at once, by SystemExit, which unwinds through the node's cleanup.
+building a Task. `run_node` looks at the flag before it starts rclpy, the spin loop within
+SIGNAL_POLL_S; a node's start-up (well under a second) runs to its end first. Only a long start-up step
+that is safe to cut (`interruptible`: numba's kernels, up to a minute on a fresh install) ends at once,
+by SystemExit, which unwinds through the node's cleanup.
 
 `kill -USR1 <pid>` prints the Python stack of every thread on stderr, from C, also while the main
 thread is blocked in a C call and no Python handler can run.
@@ -28,11 +29,12 @@ _CUTTABLE = threading.Event()  # inside `interruptible` during start-up: a signa
 
 
 def install() -> None:
-    """The handlers, for this process (idempotent)."""
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        if not SIGNALLED.is_set():
-            signal.signal(sig, _on_signal)
+    """The handlers, for this process (again: no change)."""
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+    if SIGNALLED.is_set():
+        return  # a signal came already, and further ones stay ignored
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
 
 
 @contextmanager
