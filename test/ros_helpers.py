@@ -71,7 +71,7 @@ class NodeProcess:
             try:
                 self.process.wait(timeout=STOP_TIMEOUT_S)
             except subprocess.TimeoutExpired:
-                self.process.send_signal(signal.SIGUSR1)  # run_node's stack dump: where it hangs, in its output
+                self.process.send_signal(signal.SIGUSR1)  # the node's stack dump (ros/signals.py): where it hangs
                 time.sleep(1.0)
                 self.process.kill()
                 self.process.wait()

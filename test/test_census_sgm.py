@@ -167,25 +167,13 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
     return postprocess._finish(coded, np.zeros_like(coded), aggregation.HOLE, gaps)
 
 
-@pytest.mark.parametrize(
-    ("paths", "min_disparity", "num_disparities"),
-    [
-        (8, 0, 24),
-        (8, 3, 37),
-        (4, 0, 24),
-        (8, 0, 70),
-        (6, 0, 24),
-        (6, 3, 37),
-        (6, 0, 70),
-        (5, 0, 24),
-        (5, 3, 37),
-        # the counts whose sweeps are compiled with the count as a constant (aggregation._sweep)
-        (6, 0, 64),
-        (8, 3, 64),
-        (4, 0, 64),
-        (6, 0, 128),
-    ],
-)
+# (paths, min_disparity, num_disparities): counts that are no multiple of a vector width, and the common
+# counts whose sweeps are compiled with the count as a constant (aggregation._sweep)
+ODD = [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70), (6, 0, 24), (6, 3, 37), (6, 0, 70), (5, 0, 24), (5, 3, 37)]
+CONSTANT = [(6, 0, 64), (8, 3, 64), (4, 0, 64), (6, 0, 128)]
+
+
+@pytest.mark.parametrize(("paths", "min_disparity", "num_disparities"), [*ODD, *CONSTANT])
 def test_core_computes_exactly_what_the_plain_reference_defines(
     paths: int, min_disparity: int, num_disparities: int
 ) -> None:
@@ -193,8 +181,8 @@ def test_core_computes_exactly_what_the_plain_reference_defines(
 
     A real Tsukuba crop (its left border included, so the clamped costs and the edge rule count),
     disparity counts that are no multiple of a vector width and the common ones (64, 128) that have
-    sweeps of their own; the post-processing filters are off,
-    since they run after the matching this checks.
+    sweeps of their own; the post-processing filters are off, since they run after the matching this
+    checks.
     """
     import sgm_reference
 
