@@ -3,15 +3,17 @@
 numba's machine code has no symbols perf can read, so this runs the `quality` profile's matcher (census_sgm,
 `--paths`, the rectified 640x480 EuRoC pair, 128 disparities) for `--frames` frames in a child
 process under `perf record`; the child then copies every anonymous executable mapping (the JIT code) to a
-file. The parent maps perf's samples onto those copies, disassembles them (`objdump -b binary`), finds the
-innermost loops (a backward jump over fewer than 600 bytes) and sorts each loop's samples by the
-instructions it is made of:
+file. The parent maps perf's samples onto those copies, disassembles them (`objdump -b binary`) and gives
+each sampled instruction the kind of the nearest instruction that marks one, at most `MARK_REACH`
+instructions away (a sample often lands on a load or an add beside the instruction that makes it what it
+is). Loops are not the unit: with the disparity count a constant, LLVM unrolls a pixel's 128-disparity
+loops completely, so the path updates sit in the pixel loop's body, beside the sums.
 
   * Hamming costs: a popcount (PSHUFB nibble table + PSADBW, POPCNT, or VPOPCNTQ);
-  * path updates: unsigned byte minima (PMINUB), the SGM recurrence on uint8 path costs;
-  * sums S: byte-to-word widening adds (PMOVZXBW + PADDW), the paths' costs added per pixel;
   * selection: unsigned word minima (PMINUW), the winner search on S;
-  * other loops, and code outside the inner loops.
+  * path updates: unsigned byte minima (PMINUB), the SGM recurrence on uint8 path costs;
+  * sums S: byte-to-word widening (PMOVZXBW), the paths' costs added per pixel;
+  * other code: no such instruction nearby (loop control, addressing, scalar work).
 
 Shares of the samples in the JIT code (the census core's kernels; OpenCV and Python are left out).
 Set the `--simd` variables of bench/readme_figures.py to see another SIMD level.
@@ -41,7 +43,7 @@ KINDS = (  # (name, instructions that mark it), checked in this order
     ("path updates", ("pminub",)),
     ("sums S", ("pmovzxbw",)),
 )
-INNER_LOOP_BYTES = 600
+MARK_REACH = 12  # instructions either side of a sample searched for a marking one
 
 
 def child(paths: int, frames: int, out: Path) -> None:
@@ -74,28 +76,25 @@ def instructions(code: Path) -> list[tuple[int, str]]:
     return [(int(m.group(1), 16), m.group(2)) for m in matches if m]
 
 
-def kind_of(loop: list[str]) -> str:
-    mnemonics = " ".join(instruction.split()[0] for instruction in loop if instruction.split())
-    return next((name for name, marks in KINDS if any(mark in mnemonics for mark in marks)), "other loops")
+def kind_of(instruction: str) -> str | None:
+    """The kind an instruction marks, if any."""
+    mnemonic = instruction.split()[0] if instruction.split() else ""
+    return next((name for name, marks in KINDS if any(mark in mnemonic for mark in marks)), None)
 
 
 def shares(samples: collections.Counter[tuple[Path, int]], codes: list[Path]) -> dict[str, float]:
-    """Share of the JIT samples per kind of innermost loop."""
+    """Share of the JIT samples per kind: the nearest marking instruction's, else "other code"."""
     by_kind: collections.Counter[str] = collections.Counter()
     for code in codes:
         listing = instructions(code)
-        counted: set[int] = set()
-        ends: dict[int, int] = {}  # loop header -> its last backward jump (a loop may have several latches)
-        for offset, instruction in listing:
-            jump = re.match(r"j\w+\s+0x([0-9a-f]+)", instruction)
-            if jump and offset - INNER_LOOP_BYTES < int(jump.group(1), 16) < offset:
-                header = int(jump.group(1), 16)
-                ends[header] = max(ends.get(header, offset), offset)
-        for start, end in sorted(ends.items(), key=lambda loop: loop[1] - loop[0]):  # innermost first
-            body = [(o, i) for o, i in listing if start <= o <= end and o not in counted]
-            by_kind[kind_of([i for _, i in body])] += sum(samples[(code, o)] for o, _ in body)
-            counted.update(o for o, _ in body)
-        by_kind["outside inner loops"] += sum(n for (c, o), n in samples.items() if c == code and o not in counted)
+        kinds = [kind_of(instruction) for _, instruction in listing]
+        index = {offset: i for i, (offset, _) in enumerate(listing)}
+        for (sampled, offset), n in samples.items():
+            if sampled != code or offset not in index:
+                continue
+            i = index[offset]
+            near = (kinds[j] for step in range(MARK_REACH + 1) for j in (i - step, i + step) if 0 <= j < len(kinds))
+            by_kind[next((kind for kind in near if kind), "other code")] += n
     total = sum(by_kind.values())
     return {name: n / total for name, n in by_kind.items()} if total else {}
 
@@ -136,7 +135,7 @@ def main() -> None:
     if missing:
         raise SystemExit(f"kernel_profile.py needs {' and '.join(missing)} (Linux perf, binutils)")
     runs = {paths: profile(paths, args.frames) for paths in args.paths}
-    names = [name for name, _ in KINDS] + ["other loops", "outside inner loops"]
+    names = [name for name, _ in KINDS] + ["other code"]
     columns = ("part of the kernel", *(f"{paths} paths" for paths in args.paths))
     print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames; {time.strftime('%Y-%m-%d')}")
     print(table_header(columns) if args.markdown else "  ".join(columns))

@@ -192,7 +192,7 @@ def performance(run: Run) -> bool:
     ok = run.bench("simd_match_ratio.py", quick=("--repeat", "2")) and ok
     print("\nWhere the census core's time goes, step by step (`bench/census_steps.py`):\n")
     ok = run.bench("census_steps.py", quick=("--repeat", "2")) and ok
-    print("\nInside the census core's fused kernel, by kind of inner loop (`bench/kernel_profile.py`):\n")
+    print("\nInside the census core's fused kernel, by kind of work (`bench/kernel_profile.py`):\n")
     if shutil.which("perf") and shutil.which("objdump"):
         ok = run.bench("kernel_profile.py", quick=("--frames", "2")) and ok
     else:
