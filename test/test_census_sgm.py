@@ -217,6 +217,32 @@ def test_core_computes_exactly_what_the_plain_reference_defines(
     np.testing.assert_allclose(our_conf, expected_conf, atol=1e-4)
 
 
+@pytest.mark.parametrize("num_disparities", [64, 128, 40])
+def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(num_disparities: int) -> None:
+    """window_size > 1 box-sums a cost volume first and runs the sweeps of ``_aggregate_select_volume``
+    (one copy, any count); on the window-1 volume it must give the fused kernel's answer exactly."""
+    from stereo_depth.core.census_sgm import aggregation, census
+
+    left, right, _, _, _ = load_scene("tsukuba")
+    left, right = np.ascontiguousarray(left[100:196, :224]), np.ascontiguousarray(right[100:196, :224])
+    compile_kernels()
+    cl, cr = census.census_pair(left, right, census.CENSUS_SIZE)
+    shift, p1, p2 = aggregation.cost_shift(62, 1, 20.0, 200.0)
+    select = (0, 0.03, 1, 1.5, 0.5)
+    shape = (*left.shape, num_disparities)
+    fused = aggregation._aggregate_select(
+        np.empty(shape, np.uint8), (cl, cr), shift, left, np.empty(shape, np.uint16), (p1, p2, 4.0, 6), select
+    )
+    costs = np.empty(shape, np.uint8)
+    aggregation._hamming_volume(cl, cr, 0, costs)
+    summed = aggregation._aggregate_select_volume(
+        costs >> np.uint8(shift), left, np.empty(shape, np.uint16), (p1, p2, 4.0, 6), select
+    )
+    assert (fused[0] > 0).mean() > 0.5  # matches, not an empty answer both ways
+    np.testing.assert_array_equal(summed[0], fused[0])
+    np.testing.assert_array_equal(summed[1], fused[1])
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_confident_pixels_are_more_accurate(name: str) -> None:
     _, _, gt, mask, _ = load_scene(name)

@@ -112,9 +112,11 @@ def census_sgm(
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
     if paths == 5:
         disp, conf = aggregation._strips_select(vol, census, shift, left, p1, p2, float(p2_gamma), select)
+    elif census is None:
+        disp, conf = aggregation._aggregate_select_volume(vol, left, acc, (p1, p2, float(p2_gamma), paths), select)
     else:
         disp, conf = aggregation._aggregate_select(
-            vol, census, shift, left, acc, p1, p2, float(p2_gamma), paths, select
+            vol, census, shift, left, acc, (p1, p2, float(p2_gamma), paths), select
         )
     start = _lap(timings, "costs, paths and selection", start)
     if median:

@@ -437,14 +437,11 @@ def _select_row(
 @_kernel(parallel=True)
 def _aggregate_select(
     vol: np.ndarray,
-    census: tuple[np.ndarray, np.ndarray] | None,
+    census: tuple[np.ndarray, np.ndarray],
     shift: int,
     img: np.ndarray,
     acc: np.ndarray,
-    p1: int,
-    p2: int,
-    gamma: float,
-    paths: int,
+    sgm: tuple[int, int, float, int],
     select: tuple[int, float, int, float, float],
 ) -> tuple[np.ndarray, np.ndarray]:
     """8-, 6- or 4-path SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
@@ -452,29 +449,17 @@ def _aggregate_select(
     Two sweeps run side by side, one top-down and one bottom-up, each carrying half of the paths
     (``_sweep``). Until they meet in the middle row each stores S on its own half of the image;
     after that each adds its paths to the half the other one stored, which completes S row by
-    row, and matches the row at once. With ``census`` given, the storing sweeps also compute the
-    costs (``_hamming_pixel``) just before using them. So the cost volume is written once and
+    row, and matches the row at once. The storing sweeps also compute the costs from ``census``
+    (``_hamming_pixel``) just before using them. So the cost volume is written once and
     read back once, S written and read once, with no second volume, no zeroing, and two parallel
     launches per frame (a parallel launch per row, parallel over columns, cost ~5x more at
-    640x480). The price: this stage uses two cores at most.
+    640x480). The price: this stage uses two cores at most. ``sgm`` is (P1, P2, p2_gamma, paths).
     """
-    h, w, nd = vol.shape
-    ndirs = 3 if paths == 8 else 2 if paths == 6 else 1
-    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
-    bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint8)  # (sweep, row parity, direction, slot, d)
-    bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
-    bufs[:, :, :, :, nd + 1] = 255 - p1
-    mins = np.zeros((2, 2, ndirs, w + 2), np.uint8)
-    disp = np.full((h, w), HOLE, np.float32)
-    conf = np.zeros((h, w), np.float32)
-    mid = h // 2
+    h, nd, p1 = vol.shape[0], vol.shape[2], sgm[0]
+    p2_of, bufs, mins, disp, conf = _sweep_state(vol, sgm)
     for finish in (False, True):
         for t in prange(2):
-            sy = 1 - 2 * t
-            if t == 0:
-                y0, y1 = (mid, h) if finish else (0, mid)
-            else:
-                y0, y1 = (mid - 1, -1) if finish else (h - 1, mid - 1)
+            y0, y1, sy = _sweep_rows(h, t, finish)
             # the common counts as literals: each call pastes in a copy of ``_sweep`` with a constant count
             b, m = bufs[t], mins[t]
             if nd == 64:
@@ -484,6 +469,53 @@ def _aggregate_select(
             else:
                 _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, nd)
     return disp, conf
+
+
+@_kernel(parallel=True)
+def _aggregate_select_volume(
+    vol: np.ndarray,
+    img: np.ndarray,
+    acc: np.ndarray,
+    sgm: tuple[int, int, float, int],
+    select: tuple[int, float, int, float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """``_aggregate_select`` on a cost volume computed beforehand (window_size > 1, box-summed and shifted).
+
+    A kernel of its own with one copy of ``_sweep`` for any count: no profile sums a window, and the
+    constant-count copies take most of numba's compile time at install.
+    """
+    h, nd, p1 = vol.shape[0], vol.shape[2], sgm[0]
+    p2_of, bufs, mins, disp, conf = _sweep_state(vol, sgm)
+    for finish in (False, True):
+        for t in prange(2):
+            y0, y1, sy = _sweep_rows(h, t, finish)
+            _sweep(vol, None, 0, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf, nd)
+    return disp, conf
+
+
+@_kernel(inline=True)
+def _sweep_state(
+    vol: np.ndarray, sgm: tuple[int, int, float, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the two sweeps share: the P2 table, path buffers and minima per sweep, the output rows."""
+    h, w, nd = vol.shape
+    p1, p2, gamma, paths = sgm
+    ndirs = 3 if paths == 8 else 2 if paths == 6 else 1
+    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
+    bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint8)  # (sweep, row parity, direction, slot, d)
+    bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
+    bufs[:, :, :, :, nd + 1] = 255 - p1
+    mins = np.zeros((2, 2, ndirs, w + 2), np.uint8)
+    return p2_of, bufs, mins, np.full((h, w), HOLE, np.float32), np.zeros((h, w), np.float32)
+
+
+@_kernel(inline=True)
+def _sweep_rows(h: int, t: int, finish: bool) -> tuple[int, int, int]:
+    """(first row, end row, step) of sweep t (0 top-down, 1 bottom-up): up to the middle row, then past it."""
+    mid = h // 2
+    if t == 0:
+        return (mid, h, 1) if finish else (0, mid, 1)
+    return (mid - 1, -1, -1) if finish else (h - 1, mid - 1, -1)
 
 
 @_kernel(parallel=True)
