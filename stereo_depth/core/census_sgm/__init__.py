@@ -110,14 +110,13 @@ def census_sgm(
         vol = aggregation._box_sum(vol, window_size, shift)
         census = None
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
+    sgm = (p1, p2, float(p2_gamma), paths)
     if paths == 5:
         disp, conf = aggregation._strips_select(vol, census, shift, left, p1, p2, float(p2_gamma), select)
-    elif census is None:
-        disp, conf = aggregation._aggregate_select_volume(vol, left, acc, (p1, p2, float(p2_gamma), paths), select)
+    elif window_size > 1:  # the summed volume: a kernel of its own, compiled with one copy of the sweeps
+        disp, conf = aggregation._aggregate_select_volume(vol, left, acc, sgm, select)
     else:
-        disp, conf = aggregation._aggregate_select(
-            vol, census, shift, left, acc, (p1, p2, float(p2_gamma), paths), select
-        )
+        disp, conf = aggregation._aggregate_select(vol, (cl, cr), shift, left, acc, sgm, select)
     start = _lap(timings, "costs, paths and selection", start)
     if median:
         disp = postprocess._median3(disp, aggregation.HOLE)
