@@ -32,9 +32,8 @@ def cost_shift(census_bits: int, p1: float, p2: float) -> tuple[int, int, int]:
 
 # Predecessor offsets (dy, dx) of the 8 paths; the first 4 are the 4-path mode.
 PATHS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, 1), (-1, -1), (1, 1), (1, -1))
-# The 6-path mode: the 4 paths and one diagonal both ways (from the upper left and from the lower right).
-SIX_PATHS = (*PATHS[:4], (-1, -1), (1, 1))
-# The 5-path mode: the paths from the side and from the row above, aggregated per row strip.
+# The 5-path mode: the paths from the side and from the row above, aggregated per row strip; the 6-path mode
+# adds a coarse path from below (``bottom_up``).
 TOP_DOWN_PATHS = ((0, -1), (0, 1), (-1, 0), (-1, 1), (-1, -1))
 STRIP_WARMUP = 48  # the 5-path mode's lower strip starts this many rows (at most half the image) above its first
 
@@ -88,6 +87,25 @@ def _step(cost: np.ndarray, prev: np.ndarray, p1: int, p2: np.ndarray) -> np.nda
     return out
 
 
+def bottom_up(cost: np.ndarray, image: np.ndarray, p1: int, p2_of: np.ndarray) -> np.ndarray:
+    """The 6-path mode's path from below: predecessor (y + 2, x), computed on rows h - 1, h - 3, ... and
+    columns 0, 2, ...; a row between takes the computed row below it, a column between the one left of it."""
+    h, w, _ = cost.shape
+    grey = image.astype(np.int64)
+    columns = np.arange(0, w, 2)
+    path = np.zeros_like(cost)
+    for y in range(h - 1, -1, -2):
+        if y == h - 1:
+            computed = cost[y, columns]
+        else:
+            p2 = p2_of[np.abs(grey[y, columns] - grey[y + 2, columns])]
+            computed = _step(cost[y, columns], computed, p1, p2)
+        path[y] = np.repeat(computed, 2, axis=0)[:w]
+        if y >= 1:
+            path[y - 1] = path[y]
+    return path
+
+
 def aggregate(
     cost: np.ndarray, image: np.ndarray, p1: int, p2_of: np.ndarray, paths: tuple[tuple[int, int], ...]
 ) -> np.ndarray:
@@ -139,12 +157,12 @@ def match(
     shift, p1, p2 = cost_shift(62, P1, P2)
     cost = costs(left, right, min_disparity, num_disparities, shift)
     p2_of = p2_table(p1, p2, p2_gamma)
-    if paths == 5:  # each strip's paths start at its first row; rows before ``first`` only warm them up
-        total = np.zeros_like(cost)
+    if paths in (5, 6):  # each strip's paths start at its first row; rows before ``first`` only warm them up
+        total = bottom_up(cost, left, p1, p2_of) if paths == 6 else np.zeros_like(cost)
         for start, first, end in strips(left.shape[0]):
-            total[first:end] = aggregate(cost[start:end], left[start:end], p1, p2_of, TOP_DOWN_PATHS)[first - start :]
+            total[first:end] += aggregate(cost[start:end], left[start:end], p1, p2_of, TOP_DOWN_PATHS)[first - start :]
     else:
-        total = aggregate(cost, left, p1, p2_of, SIX_PATHS if paths == 6 else PATHS[:paths])
+        total = aggregate(cost, left, p1, p2_of, PATHS[:paths])
     h, w, nd = total.shape
     disparity = np.full((h, w), np.nan, np.float32)
     confidence = np.zeros((h, w), np.float32)

@@ -167,27 +167,26 @@ def _close_gaps_only(disp: np.ndarray) -> np.ndarray:
     return postprocess._finish(coded, np.zeros_like(coded), aggregation.HOLE, gaps)
 
 
-# (paths, min_disparity, num_disparities): counts that are no multiple of a vector width, and the common
-# counts whose sweeps are compiled with the count as a constant (aggregation._sweep)
+# (paths, min_disparity, num_disparities): counts that are no multiple of a vector width, and the common ones
 ODD = [(8, 0, 24), (8, 3, 37), (4, 0, 24), (8, 0, 70), (6, 0, 24), (6, 3, 37), (6, 0, 70), (5, 0, 24), (5, 3, 37)]
-CONSTANT = [(6, 0, 64), (8, 3, 64), (4, 0, 64), (6, 0, 128)]
+COMMON = [(6, 0, 64), (8, 3, 64), (4, 0, 64), (6, 0, 128)]
 
 
-@pytest.mark.parametrize(("paths", "min_disparity", "num_disparities"), [*ODD, *CONSTANT])
+@pytest.mark.parametrize(("paths", "min_disparity", "num_disparities"), [*ODD, *COMMON])
 def test_core_computes_exactly_what_the_plain_reference_defines(
     paths: int, min_disparity: int, num_disparities: int
 ) -> None:
     """The numba core (8-bit paths, meeting sweeps or row strips, right view off the left's row) against plain numpy.
 
     A real Tsukuba crop (its left border included, so the clamped costs and the edge rule count),
-    disparity counts that are no multiple of a vector width and the common ones (64, 128) that have
-    sweeps of their own; the post-processing filters are off, since they run after the matching this
-    checks.
+    disparity counts that are no multiple of a vector width and the common ones (64, 128); an odd
+    height and width, so the 6-path mode's coarse path from below has a row and a column of its own
+    at the borders; the post-processing filters are off, since they run after the matching this checks.
     """
     import sgm_reference
 
     left, right, _, _, _ = load_scene("tsukuba")
-    crop = (slice(120, 168), slice(0, max(96, num_disparities + 32)))  # wide enough for 128 to be searched
+    crop = (slice(120, 167), slice(0, max(97, num_disparities + 33)))  # wide enough for 128 to be searched
     settings: dict[str, Any] = {"P1": 20, "P2": 200, "uniqueness_ratio": 3, "disp12_max_diff": 1}
     ours, our_conf = census_sgm(
         left[crop],
@@ -217,10 +216,12 @@ def test_core_computes_exactly_what_the_plain_reference_defines(
     np.testing.assert_allclose(our_conf, expected_conf, atol=1e-4)
 
 
-@pytest.mark.parametrize("num_disparities", [64, 128, 40])
-def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(num_disparities: int) -> None:
-    """window_size > 1 box-sums a cost volume first and runs the sweeps of ``_aggregate_select_volume``
-    (one copy, any count); on the window-1 volume it must give the fused kernel's answer exactly."""
+@pytest.mark.parametrize(("paths", "num_disparities"), [(8, 64), (8, 128), (8, 40), (6, 128), (6, 40)])
+def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(
+    paths: int, num_disparities: int
+) -> None:
+    """window_size > 1 box-sums a cost volume first and the kernels read it (``census`` None: the sweeps,
+    the strips and the path from below); on the window-1 volume they must give the census-fed answer exactly."""
     from stereo_depth.core.census_sgm import aggregation, census
 
     left, right, _, _, _ = load_scene("tsukuba")
@@ -229,15 +230,19 @@ def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(n
     cl, cr = census.census_pair(left, right, census.CENSUS_SIZE)
     shift, p1, p2 = aggregation.cost_shift(62, 1, 20.0, 200.0)
     select = (0, 0.03, 1, 1.5, 0.5)
+    sgm = (p1, p2, 4.0, paths)
     shape = (*left.shape, num_disparities)
-    fused = aggregation._aggregate_select(
-        np.empty(shape, np.uint8), (cl, cr), shift, left, np.empty(shape, np.uint16), (p1, p2, 4.0, 6), select
-    )
     costs = np.empty(shape, np.uint8)
     aggregation._hamming_volume(cl, cr, 0, costs)
-    summed = aggregation._aggregate_select_volume(
-        costs >> np.uint8(shift), left, np.empty(shape, np.uint16), (p1, p2, 4.0, 6), select
-    )
+    answers = []
+    for vol, pair in ((np.empty(shape, np.uint8), (cl, cr)), (costs >> np.uint8(shift), None)):
+        if paths == 8:
+            sums = np.empty(shape, np.uint16)
+            answers.append(aggregation._aggregate_select(vol, pair, shift, left, sums, sgm, select))
+        else:
+            up = aggregation._bottom_up(vol, pair, shift, left, sgm, 0)
+            answers.append(aggregation._strips_select(vol, pair, shift, left, sgm, select, up))
+    fused, summed = answers
     assert (fused[0] > 0).mean() > 0.5  # matches, not an empty answer both ways
     np.testing.assert_array_equal(summed[0], fused[0])
     np.testing.assert_array_equal(summed[1], fused[1])

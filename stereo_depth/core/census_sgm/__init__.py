@@ -6,7 +6,8 @@ The recipe is the standard CPU one (Zabih & Woodfill census, Hirschmueller SGM):
       -> Hamming cost volume C[y, x, d] (uint8, box-summed over ``window_size``; costs and P1/P2
          shifted right together until the path costs fit 8 bits, see ``cost_shift``)
       -> 6-path scanline aggregation S = sum_r L_r (L_r uint8, S uint16), P2 shrunk across edges
-         (a top-down and a bottom-up sweep side by side, see ``_aggregate_select``)
+         (a coarse path from below first, then the five from above and the side in two row strips
+         side by side that stay in cache, see ``_strips_select``)
       -> winner-take-all + uniqueness on S, row by row as soon as S of the row is complete
       -> right disparity from the same S (argmin along the diagonal), left-right check
       -> parabola sub-pixel fit -> hole-aware 3x3 median -> speckle removal
@@ -70,12 +71,11 @@ def census_sgm(
     ``window_size`` box-sums the Hamming costs (1 = census only; odd). P1/P2 are in units of
     census bits x window area. ``uniqueness_ratio`` is a percentage as in OpenCV; ``disp12_max_diff``
     < 0 disables the left-right check. ``census_size`` is (height, width), at most 63 bits.
-    ``paths`` is 4 (horizontal + vertical), 6 (those and the diagonal from the upper left and from the
-    lower right; within 0.001 of 8 in bad-1, bad-2 and density over the 38 scenes, ~8 % sooner) or 8,
-    aggregated by two sweeps over the whole cost volume,
-    or 5 (horizontal + the three from the row above), aggregated in one top-down pass per row strip
-    with nothing of volume size in memory (``_strips_select``): 1.3-1.7x sooner at AVX-512, AVX2 and
-    128-bit alike (bench/simd_match_ratio.py), bad-1 0.010 and bad-2 0.004 worse over the 38 scenes.
+    ``paths`` is 5 (horizontal + the three from the row above), aggregated in one top-down pass per
+    row strip with nothing of volume size in memory (``_strips_select``); 6 (those and the path from
+    below, computed first on every other row and column: ``_bottom_up``; within 0.0011 of 8 in bad-1,
+    bad-2, bad-2 of estimated pixels and density over the 38 scenes, where 5 paths are 0.010 worse in
+    bad-1); 4 (horizontal + vertical) or 8, aggregated by two sweeps over the whole cost volume.
     ``speckle_size`` 0 disables speckle removal.
     Confidence is the cost margin (second - best) / second times ``conf_gain``, clipped to 1 and
     scaled by ``lr_penalty`` where the two views disagree by a pixel.
@@ -111,12 +111,13 @@ def census_sgm(
         census = None
     select = (int(min_disparity), uniqueness_ratio / 100.0, int(disp12_max_diff), float(conf_gain), float(lr_penalty))
     sgm = (p1, p2, float(p2_gamma), paths)
-    if paths == 5:
-        disp, conf = aggregation._strips_select(vol, census, shift, left, p1, p2, float(p2_gamma), select)
-    elif window_size > 1:  # the summed volume: a kernel of its own, compiled with one copy of the sweeps
-        disp, conf = aggregation._aggregate_select_volume(vol, left, acc, sgm, select)
+    if paths in (5, 6):  # row strips; 6 adds the path from below, computed first
+        up = aggregation.NO_PATH_FROM_BELOW
+        if paths == 6:
+            up = aggregation._bottom_up(vol, census, shift, left, sgm, int(min_disparity))
+        disp, conf = aggregation._strips_select(vol, census, shift, left, sgm, select, up)
     else:
-        disp, conf = aggregation._aggregate_select(vol, (cl, cr), shift, left, acc, sgm, select)
+        disp, conf = aggregation._aggregate_select(vol, census, shift, left, acc, sgm, select)
     start = _lap(timings, "costs, paths and selection", start)
     if median:
         disp = postprocess._median3(disp, aggregation.HOLE)
@@ -150,7 +151,7 @@ def compile_kernels() -> str:
     modules when writable (else numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
-    for window_size, paths in itertools.product((1, 3), (6, 5)):  # window 1 and 5 paths: their own kernels
+    for window_size, paths in itertools.product((1, 3), (6, 8)):  # window 1, strips and sweeps: their own kernels
         disparity, _ = census_sgm(
             image,
             image,

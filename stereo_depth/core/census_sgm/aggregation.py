@@ -20,6 +20,8 @@ prange = range  # replaced by numba.prange before any kernel is compiled (regist
 HOLE = np.float32(-1e9)  # stands for NaN in kernels that compare values (fastmath folds isnan away)
 PATH_COST_MAX = 254  # largest matching cost + 2 x P2 the uint8 path costs hold (see ``cost_shift``)
 STRIP_WARMUP = 48  # rows the lower strip runs before its first matched row (see ``_strips_select``)
+NO_PATH_FROM_BELOW = np.zeros((0, 0, 0), np.uint8)  # ``_strips_select``'s ``up`` with 5 paths
+BOTTOM_UP_STEP = 2  # the 6-path mode's path from below runs on every this-many rows and columns (``_bottom_up``)
 
 
 @_kernel(inline=True)
@@ -121,26 +123,31 @@ def _add_paths(
             a = np.uint16(state[np.uint64(o0 + step + 1 + k)])
             b = np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
             acc[x, k] = np.uint16(acc[x, k] + a + b)
-    elif ndirs == 2:
-        for k in range(nd):
-            acc[x, k] = np.uint16(acc[x, k] + np.uint16(state[np.uint64(o0 + step + 1 + k)]))
 
 
 @_kernel(inline=True)
 def _store_paths(
-    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes the four paths' sum
+    acc: np.ndarray,  # (w, nd) uint16 S of the row: S(p) becomes the four (five) paths' sum
     x: int,
     line: np.ndarray,  # the left-to-right path's L_r(p) is line[h0 + 1 : h0 + nd + 1]
     h0: int,
     state: np.ndarray,  # the vertical / diagonal paths' L_r(p) are state[o0 + j * step + 1 ...], j < 3
     o0: int,
     step: int,
+    up: np.ndarray,  # with 6 paths, the path from below at p is up[u0 + 1 : u0 + nd + 1] (``_bottom_up``)
+    u0: int,  # < 0 with 5 paths
 ) -> None:
-    """S(p) = the four paths a row's left-to-right pass carries: one write of the uint16 row per pixel."""
-    for k in range(acc.shape[1]):
-        a = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
-        b = np.uint16(state[np.uint64(o0 + step + 1 + k)]) + np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
-        acc[x, k] = np.uint16(a + b)
+    """S(p) = the paths a row's left-to-right pass carries: one write of the uint16 row per pixel."""
+    if u0 < 0:
+        for k in range(acc.shape[1]):
+            a = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
+            b = np.uint16(state[np.uint64(o0 + step + 1 + k)]) + np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
+            acc[x, k] = np.uint16(a + b)
+    else:
+        for k in range(acc.shape[1]):
+            a = np.uint16(line[np.uint64(h0 + 1 + k)]) + np.uint16(state[np.uint64(o0 + 1 + k)])
+            b = np.uint16(state[np.uint64(o0 + step + 1 + k)]) + np.uint16(state[np.uint64(o0 + 2 * step + 1 + k)])
+            acc[x, k] = np.uint16(a + b + np.uint16(up[np.uint64(u0 + 1 + k)]))
 
 
 @_kernel(inline=True)
@@ -184,15 +191,13 @@ def _sweep(
     select: tuple[int, float, int, float, float],
     disp: np.ndarray,
     conf: np.ndarray,
-    nd: int,
 ) -> None:
-    """Rows y0, y0 + sy, ... (up to y1) of one vertical sweep: 2, 3 or 4 of the 8 SGM paths.
+    """Rows y0, y0 + sy, ... (up to y1) of one vertical sweep: 2 or 4 of the 8 SGM paths.
 
     A top-down sweep (sy = 1) runs the left-to-right path and the paths coming from (y-1, x),
     (y-1, x+1), (y-1, x-1); a bottom-up sweep (sy = -1) the right-to-left path and those from
-    (y+1, x), (y+1, x+1), (y+1, x-1). With two directions in ``bufs`` (6-path mode) the diagonal
-    is the one from the column visited before, (y-1, x-1) top-down and (y+1, x+1) bottom-up; with one
-    (4-path mode), only the horizontal and vertical paths.
+    (y+1, x), (y+1, x+1), (y+1, x-1). With one direction in ``bufs`` (4-path mode), only the
+    horizontal and vertical paths.
 
     ``bufs[y & 1, j]`` holds row y's L_r for vertical / diagonal direction j, one slot per
     column in sweep order (slot i + 1 for the i-th column visited, so memory is walked forwards
@@ -203,14 +208,8 @@ def _sweep(
     it), and the row is matched at once while it is still in cache. With ``census`` (left, right
     census images) the storing rows fill ``vol[y, x]`` just before the paths of pixel x read it
     (still in L1), and the other sweep reads it back; every cost is stored exactly once.
-
-    ``nd`` is the disparity count, ``vol.shape[2]``. A caller that passes it as a literal (64, 128)
-    gets a copy of this kernel with a constant count: LLVM then knows the trip count of the
-    per-pixel loops over the disparities and drops their run-time set-up (trip-count and remainder
-    handling), which cost about as much as a 128-disparity loop itself (the quality profile's match
-    0.84-0.86x at 640x480x128 on a Zen 1, bit-identical).
     """
-    h, w = vol.shape[0], vol.shape[1]
+    h, w, nd = vol.shape
     ndirs = bufs.shape[1]
     n2 = nd + 2
     span = w + 2  # buffers per direction and row
@@ -251,10 +250,6 @@ def _sweep(
                 cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, sa], q1, a_p2, nd)
                 ib, ob = (prev0 + 2 * span + sb) * n2, (cur0 + 2 * span + s) * n2
                 cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, sb], q1, b_p2, nd)
-            elif ndirs == 2:  # the diagonal from the column visited before: (y-1, x-1) down, (y+1, x+1) up
-                d_p2 = p2_of[abs(c - np.int64(img[yp, min(max(x - sy, 0), w - 1)]))]
-                idg, odg = (prev0 + span + s - 1) * n2, (cur0 + span + s) * n2
-                cur_min[1, s] = _path(cost, x, state, idg, odg, prev_min[1, s - 1], q1, d_p2, nd)
             _add_paths(s_row, x, keep, line, h_out, state, (cur0 + s) * n2, span * n2, ndirs, nd)
         if finish:
             _select_row(s_row, select, disp[y], conf[y], scratch)
@@ -272,12 +267,14 @@ def _strip(
     select: tuple[int, float, int, float, float],
     disp: np.ndarray,
     conf: np.ndarray,
+    up: np.ndarray,
 ) -> None:
     """Rows start..end - 1 of ``rows`` (start, first, end), top-down along five paths; those from ``first`` matched.
 
     Per row: a left-to-right pass computes the costs (``_hamming_pixel`` from ``census``, else
     reads ``vol[y]``) and runs the left-to-right path and the three from the row above ((y-1, x),
-    (y-1, x+1), (y-1, x-1)), storing their sum S; a right-to-left pass adds the fifth path; the
+    (y-1, x+1), (y-1, x-1)), storing their sum S (with the path from below, ``up`` from
+    ``_bottom_up``, when it is not empty: 6 paths); a right-to-left pass adds the fifth path; the
     row is then matched. Everything a row touches (its costs, S, the path rows: ~0.7 MB at
     640 x 128) stays in L2, and nothing of image size is written but the output.
 
@@ -287,8 +284,7 @@ def _strip(
     so path starts need no code of their own). ``mins`` holds their minima.
     """
     start, first, end = rows
-    w = img.shape[1]
-    nd = vol.shape[2]
+    h, w, nd = vol.shape
     n2 = nd + 2
     span = w + 2  # buffers per direction and row
     bufs = np.zeros((2, 3, span, n2), np.uint8)  # (row parity, direction, slot, d)
@@ -303,7 +299,10 @@ def _strip(
     scratch = _selection_scratch(w)
     q1 = np.uint8(p1)
     no_census = np.empty(0, np.uint64)
+    up_cols = up.shape[1]
+    up_flat = up.reshape(up.size)
     for y in range(start, end):
+        up_row = ((h - 1 - y) // BOTTOM_UP_STEP + 1) * up_cols  # the computed row at or below y
         cost = row_cost if census is not None else vol[y]
         cl_row, cr_row = (census[0][y], census[1][y]) if census is not None else (no_census, no_census)
         cur_min, prev_min = mins[y & 1], mins[(y & 1) ^ 1]
@@ -328,7 +327,8 @@ def _strip(
             cur_min[1, s] = _path(cost, x, state, ia, oa, prev_min[1, s + 1], q1, a_p2, nd)
             ib, ob = (prev0 + 2 * span + s - 1) * n2, (cur0 + 2 * span + s) * n2
             cur_min[2, s] = _path(cost, x, state, ib, ob, prev_min[2, s - 1], q1, b_p2, nd)
-            _store_paths(s_row, x, line, h_out, state, (cur0 + s) * n2, span * n2)
+            u0 = (up_row + x // BOTTOM_UP_STEP) * n2 if up.size else -1  # the computed column at or left of x
+            _store_paths(s_row, x, line, h_out, state, (cur0 + s) * n2, span * n2, up_flat, u0)
         h_min = np.uint8(0)
         for i in range(w):
             x = w - 1 - i
@@ -437,59 +437,30 @@ def _select_row(
 @_kernel(parallel=True)
 def _aggregate_select(
     vol: np.ndarray,
-    census: tuple[np.ndarray, np.ndarray],
+    census: tuple[np.ndarray, np.ndarray] | None,
     shift: int,
     img: np.ndarray,
     acc: np.ndarray,
     sgm: tuple[int, int, float, int],
     select: tuple[int, float, int, float, float],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """8-, 6- or 4-path SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
+    """8- or 4-path SGM aggregation into ``acc`` and matching: returns (disparity, confidence).
 
     Two sweeps run side by side, one top-down and one bottom-up, each carrying half of the paths
     (``_sweep``). Until they meet in the middle row each stores S on its own half of the image;
     after that each adds its paths to the half the other one stored, which completes S row by
     row, and matches the row at once. The storing sweeps also compute the costs from ``census``
-    (``_hamming_pixel``) just before using them. So the cost volume is written once and
-    read back once, S written and read once, with no second volume, no zeroing, and two parallel
-    launches per frame (a parallel launch per row, parallel over columns, cost ~5x more at
-    640x480). The price: this stage uses two cores at most. ``sgm`` is (P1, P2, p2_gamma, paths).
+    (``_hamming_pixel``) just before using them (``census`` None: ``vol`` holds them already). So
+    the cost volume is written once and read back once, S written and read once, with no second
+    volume, no zeroing, and two parallel launches per frame (a parallel launch per row, parallel
+    over columns, cost ~5x more at 640x480). The price: this stage uses two cores at most. ``sgm`` is (P1, P2, p2_gamma, paths).
     """
-    h, nd, p1 = vol.shape[0], vol.shape[2], sgm[0]
+    h, p1 = vol.shape[0], sgm[0]
     p2_of, bufs, mins, disp, conf = _sweep_state(vol, sgm)
     for finish in (False, True):
         for t in prange(2):
             y0, y1, sy = _sweep_rows(h, t, finish)
-            # the common counts as literals: each call pastes in a copy of ``_sweep`` with a constant count
-            b, m = bufs[t], mins[t]
-            if nd == 64:
-                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, 64)
-            elif nd == 128:
-                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, 128)
-            else:
-                _sweep(vol, census, shift, img, acc, p2_of, p1, b, m, y0, y1, sy, finish, select, disp, conf, nd)
-    return disp, conf
-
-
-@_kernel(parallel=True)
-def _aggregate_select_volume(
-    vol: np.ndarray,
-    img: np.ndarray,
-    acc: np.ndarray,
-    sgm: tuple[int, int, float, int],
-    select: tuple[int, float, int, float, float],
-) -> tuple[np.ndarray, np.ndarray]:
-    """``_aggregate_select`` on a cost volume computed beforehand (window_size > 1, box-summed and shifted).
-
-    A kernel of its own with one copy of ``_sweep`` for any count: no profile sums a window, and the
-    constant-count copies take most of numba's compile time at install.
-    """
-    h, nd, p1 = vol.shape[0], vol.shape[2], sgm[0]
-    p2_of, bufs, mins, disp, conf = _sweep_state(vol, sgm)
-    for finish in (False, True):
-        for t in prange(2):
-            y0, y1, sy = _sweep_rows(h, t, finish)
-            _sweep(vol, None, 0, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf, nd)
+            _sweep(vol, census, shift, img, acc, p2_of, p1, bufs[t], mins[t], y0, y1, sy, finish, select, disp, conf)
     return disp, conf
 
 
@@ -500,7 +471,7 @@ def _sweep_state(
     """What the two sweeps share: the P2 table, path buffers and minima per sweep, the output rows."""
     h, w, nd = vol.shape
     p1, p2, gamma, paths = sgm
-    ndirs = 3 if paths == 8 else 2 if paths == 6 else 1
+    ndirs = 3 if paths == 8 else 1
     p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
     bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint8)  # (sweep, row parity, direction, slot, d)
     bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
@@ -519,35 +490,95 @@ def _sweep_rows(h: int, t: int, finish: bool) -> tuple[int, int, int]:
 
 
 @_kernel(parallel=True)
+def _bottom_up(
+    vol: np.ndarray,
+    census: tuple[np.ndarray, np.ndarray] | None,
+    shift: int,
+    img: np.ndarray,
+    sgm: tuple[int, int, float, int],
+    min_d: int,
+) -> np.ndarray:
+    """The 6-path mode's path from below, coarse: L_r along (y + 2, x) on every other row and column.
+
+    Rows h - 1, h - 3, ... and columns 0, 2, ... (``BOTTOM_UP_STEP``): a quarter of one path's
+    costs and updates. The row between two computed rows takes the one below it, the column
+    between two computed columns the one left of it (``_strip`` reads it so). Returns
+    (rows + 1, columns, nd + 2) uint8 path costs with the sentinels of ``_path`` at both ends of
+    each; entry 0 is the zero predecessor that starts the path at the bottom row. Its information
+    from below is what the five paths from above and the side lack: over the 38 ground-truth
+    scenes it brings them within 0.001 of 8 paths in bad-1 and bad-2 (at every row and column:
+    within 0.0005, at 4x the cost). Two column halves side by side.
+    """
+    h, w, nd = vol.shape
+    p1 = sgm[0]
+    n2 = nd + 2
+    step = BOTTOM_UP_STEP
+    rows, cols = (h + step - 1) // step, (w + step - 1) // step
+    up = np.empty((rows + 1, cols, n2), np.uint8)
+    up[0] = 0
+    up[:, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
+    up[:, :, nd + 1] = 255 - p1
+    flat = up.reshape(up.size)
+    mins = np.zeros(cols, np.uint8)
+    p2_of = _p2_table(p1, sgm[1], sgm[2]).astype(np.uint8)
+    q1 = np.uint8(p1)
+    half = (cols + 1) // 2
+    for t in prange(2):
+        row_cost = np.empty((w, nd), np.uint8)
+        for j in range(rows):
+            y = h - 1 - j * step
+            below = min(y + step, h - 1)  # any row at j = 0: the predecessor is zero
+            cost = row_cost if census is not None else vol[y]
+            for xc in range(t * half, min(cols, (t + 1) * half)):
+                x = xc * step
+                if census is not None:
+                    _hamming_pixel(census[0][y], census[1][y], x, min_d, shift, cost)
+                p2x = p2_of[abs(np.int64(img[y, x]) - np.int64(img[below, x]))]
+                i0, o0 = (j * cols + xc) * n2, ((j + 1) * cols + xc) * n2
+                mins[xc] = _path(cost, x, flat, i0, o0, mins[xc], q1, p2x, nd)
+    return up
+
+
+@_kernel(parallel=True)
 def _strips_select(
     vol: np.ndarray,
     census: tuple[np.ndarray, np.ndarray] | None,
     shift: int,
     img: np.ndarray,
-    p1: int,
-    p2: int,
-    gamma: float,
+    sgm: tuple[int, int, float, int],
     select: tuple[int, float, int, float, float],
+    up: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """5-path SGM aggregation and matching in two row strips side by side: returns (disparity, confidence).
+    """5- or 6-path SGM aggregation and matching in two row strips side by side: returns (disparity, confidence).
 
     The five paths all come from above or from the side (``_strip``), so one top-down pass per
     strip completes S row by row and matches each row while it is in cache: no cost or sum volume.
-    The lower strip starts ``STRIP_WARMUP`` rows above its first matched row, so its paths from
+    With 6 paths, ``up`` holds the coarse path from below (``_bottom_up``), added into S; with 5 it
+    is empty. The lower strip starts ``STRIP_WARMUP`` rows above its first matched row, so its paths from
     above carry that much context into it (SGM paths forget their start within a few dozen rows);
     the split row gives both strips as many rows. Two strips whatever the thread count, so the
     result does not depend on it; this stage uses two cores at most.
     """
     h, w = img.shape
-    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
-    disp = np.full((h, w), HOLE, np.float32)
-    conf = np.zeros((h, w), np.float32)
+    p2_of, disp, conf = _strips_state(h, w, sgm)
+    for t in prange(2):
+        _strip(vol, census, shift, img, p2_of, sgm[0], _strip_rows(h, t), select, disp, conf, up)
+    return disp, conf
+
+
+@_kernel(inline=True)
+def _strips_state(h: int, w: int, sgm: tuple[int, int, float, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the two strips share: the P2 table and the output images."""
+    p2_of = _p2_table(sgm[0], sgm[1], sgm[2]).astype(np.uint8)
+    return p2_of, np.full((h, w), HOLE, np.float32), np.zeros((h, w), np.float32)
+
+
+@_kernel(inline=True)
+def _strip_rows(h: int, t: int) -> tuple[int, int, int]:
+    """Strip t's (first row aggregated, first row matched, end row): as many matched rows as the other."""
     warmup = min(STRIP_WARMUP, h // 2)
     split = (h + warmup) // 2
-    for t in prange(2):
-        rows = (0, 0, split) if t == 0 else (split - warmup, split, h)
-        _strip(vol, census, shift, img, p2_of, p1, rows, select, disp, conf)
-    return disp, conf
+    return (0, 0, split) if t == 0 else (split - warmup, split, h)
 
 
 _local = threading.local()
