@@ -220,8 +220,9 @@ def test_core_computes_exactly_what_the_plain_reference_defines(
 def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(
     paths: int, num_disparities: int
 ) -> None:
-    """window_size > 1 box-sums a cost volume first and the kernels read it (``census`` None: the sweeps,
-    the strips and the path from below); on the window-1 volume they must give the census-fed answer exactly."""
+    """window_size > 1 box-sums a cost volume first and the kernels read it (the sweeps and the path from
+    below with ``census`` None, the strips' one-copy kernel of their own); on the window-1 volume they must
+    give the census-fed answer exactly."""
     from stereo_depth.core.census_sgm import aggregation, census
 
     left, right, _, _, _ = load_scene("tsukuba")
@@ -241,7 +242,10 @@ def test_costs_summed_beforehand_take_the_path_of_their_own_to_the_same_answer(
             answers.append(aggregation._aggregate_select(vol, pair, shift, left, sums, sgm, select))
         else:
             up = aggregation._bottom_up(vol, pair, shift, left, sgm, 0)
-            answers.append(aggregation._strips_select(vol, pair, shift, left, sgm, select, up))
+            if pair is None:
+                answers.append(aggregation._strips_select_volume(vol, left, sgm, select, up))
+            else:
+                answers.append(aggregation._strips_select(vol, pair, shift, left, sgm, select, up))
     fused, summed = answers
     assert (fused[0] > 0).mean() > 0.5  # matches, not an empty answer both ways
     np.testing.assert_array_equal(summed[0], fused[0])

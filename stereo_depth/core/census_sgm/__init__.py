@@ -115,7 +115,10 @@ def census_sgm(
         up = aggregation.NO_PATH_FROM_BELOW
         if paths == 6:
             up = aggregation._bottom_up(vol, census, shift, left, sgm, int(min_disparity))
-        disp, conf = aggregation._strips_select(vol, census, shift, left, sgm, select, up)
+        if window_size > 1:
+            disp, conf = aggregation._strips_select_volume(vol, left, sgm, select, up)
+        else:
+            disp, conf = aggregation._strips_select(vol, (cl, cr), shift, left, sgm, select, up)
     else:
         disp, conf = aggregation._aggregate_select(vol, census, shift, left, acc, sgm, select)
     start = _lap(timings, "costs, paths and selection", start)
