@@ -58,8 +58,8 @@ class StereoParams:
     sgbm_mode: int = option(2, "SGBM variant: 0 SGBM (5 paths), 1 HH (8 paths), 2 SGBM_3WAY, 3 HH4", 0, 3, 1)
     census_paths: int = option(
         6,
-        "census_sgm aggregation paths: 6 (the 5 below, then a path from below on every other row and "
-        "column; within 0.0011 of 8 in bad-1, bad-2 and density over 38 scenes), 8 (two sweeps over the "
+        "census_sgm aggregation paths: 6 (those of 5 and a path from below on every other row and column, "
+        "computed first; within 0.0011 of 8 in bad-1, bad-2 and density over 38 scenes), 8 (two sweeps over the "
         "whole cost volume: the 4 straight paths and both diagonals both ways) or 5 (the 2 horizontal "
         "paths and the 3 from the row above, one pass in row strips that stay in cache; bad-1 0.010 and "
         "bad-2 0.004 worse than 6)",
