@@ -104,7 +104,7 @@ def census_sgm(
     census: tuple[np.ndarray, np.ndarray] | None = (cl, cr)  # window 1: costs computed where the paths need them
     start = _lap(timings, "census", start)
     shift, p1, p2 = cost_shift(census_size[0] * census_size[1] - 1, window_size, P1, P2)
-    vol, acc = aggregation._workspace(left.shape, int(num_disparities))  # 5 paths, window 1: left untouched
+    vol, acc = aggregation._workspace(left.shape, int(num_disparities))  # strips, window 1: left untouched
     if window_size > 1:
         aggregation._hamming_volume(cl, cr, int(min_disparity), vol)
         vol = aggregation._box_sum(vol, window_size, shift)
