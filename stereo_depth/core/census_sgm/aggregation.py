@@ -165,11 +165,12 @@ def _edge_p2(a: np.uint8, b: np.uint8, p1: int, p2: int, gamma: float) -> np.uin
 
 
 @_kernel()
-def _p2_table(p1: int, p2: int, gamma: float) -> np.ndarray:
-    """``_edge_p2`` for every intensity step 0..255, so the sweeps do a lookup instead of two divisions."""
-    table = np.empty(256, np.uint16)
+def _p2_table(sgm: tuple[int, int, float, int]) -> np.ndarray:
+    """``_edge_p2`` for every intensity step 0..255 as uint8 (P2 fits: ``cost_shift``), so the paths do a
+    lookup instead of two divisions; ``sgm`` is (P1, P2, p2_gamma, paths)."""
+    table = np.empty(256, np.uint8)
     for g in range(256):
-        table[g] = _edge_p2(np.uint8(g), np.uint8(0), p1, p2, gamma)
+        table[g] = np.uint8(_edge_p2(np.uint8(g), np.uint8(0), sgm[0], sgm[1], sgm[2]))
     return table
 
 
@@ -478,9 +479,9 @@ def _sweep_state(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What the two sweeps share: the P2 table, path buffers and minima per sweep, the output rows."""
     h, w, nd = vol.shape
-    p1, p2, gamma, paths = sgm
+    p1, paths = sgm[0], sgm[3]
     ndirs = 3 if paths == 8 else 1
-    p2_of = _p2_table(p1, p2, gamma).astype(np.uint8)
+    p2_of = _p2_table(sgm)
     bufs = np.zeros((2, 2, ndirs, w + 2, nd + 2), np.uint8)  # (sweep, row parity, direction, slot, d)
     bufs[:, :, :, :, 0] = 255 - p1  # above every path cost, and + P1 still fits
     bufs[:, :, :, :, nd + 1] = 255 - p1
@@ -529,7 +530,7 @@ def _bottom_up(
     up[:, :, nd + 1] = 255 - p1
     flat = up.reshape(up.size)
     mins = np.zeros(cols, np.uint8)
-    p2_of = _p2_table(p1, sgm[1], sgm[2]).astype(np.uint8)
+    p2_of = _p2_table(sgm)
     q1 = np.uint8(p1)
     half = (cols + 1) // 2
     for t in prange(2):
@@ -606,7 +607,7 @@ def _strips_select_volume(
 @_kernel(inline=True)
 def _strips_state(h: int, w: int, sgm: tuple[int, int, float, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the two strips share: the P2 table and the output images."""
-    p2_of = _p2_table(sgm[0], sgm[1], sgm[2]).astype(np.uint8)
+    p2_of = _p2_table(sgm)
     return p2_of, np.full((h, w), HOLE, np.float32), np.zeros((h, w), np.float32)
 
 
