@@ -16,10 +16,11 @@ venv: $(STAMP)
 
 # A venv holds exactly one lock file's versions (every package pinned, nothing resolved on the way), so a
 # fresh machine runs what CI ran; tools/check_lock.py fails the install if the venv disagrees with it.
+# --no-compile: a module's bytecode is written when it is first imported, not for all ~1 GB at install.
 define install_locked
 	@test -n "$(PYTHON312)" || { echo "ERROR: Python 3.12 not found (ROS 2 Jazzy wheels need it): install it, e.g. 'pyenv install 3.12'" >&2; exit 1; }
 	@test -x $(1)/bin/python || $(PYTHON312) -m venv $(1)
-	$(1)/bin/python -m pip install --quiet --no-deps -r $(2)
+	$(1)/bin/python -m pip install --quiet --no-deps --no-compile -r $(2)
 	$(1)/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	$(1)/bin/python tools/check_lock.py $(2)
 	@touch $(1)/.installed
