@@ -314,6 +314,22 @@ def test_importing_the_nodes_leaves_signal_handling_alone() -> None:
     assert run.stdout.split() == ["True", "True"], run.stderr
 
 
+def test_the_signal_handler_takes_no_lock() -> None:
+    """Python runs a signal's handler between two bytecodes of the main thread, also inside the handler
+    of a signal just before it (a launch file's second SIGTERM, a double Ctrl-C). A handler that takes a
+    lock (threading.Event.set) can then wait for itself forever: a node hung so in CI. Every call the
+    handler makes is recorded (in a child process: the handler ignores further signals there)."""
+    code = (
+        "import signal, sys; from stereo_depth.ros import signals; calls = []\n"
+        "def record(frame, event, arg):\n"
+        "    calls.append(getattr(arg, '__qualname__', '') if event == 'c_call' else frame.f_code.co_qualname)\n"
+        "sys.setprofile(record); signals._on_signal(signal.SIGTERM, None); sys.setprofile(None)\n"
+        "print(signals.SIGNALLED.is_set(), *sorted({c for c in calls if 'acquire' in c or '__enter__' in c}))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    assert run.stdout.split() == ["True"], run.stdout + run.stderr
+
+
 @pytest.mark.parametrize("step", ["open_outputs", "start_workers", "_warn_unused_overrides"])
 def test_a_start_up_cut_short_ends_every_thread_and_the_node_it_had_started(
     context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, step: str

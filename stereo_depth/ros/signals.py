@@ -23,9 +23,29 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-SIGNALLED = threading.Event()  # SIGINT / SIGTERM arrived: the process is on its way out
-SPINNING = threading.Event()  # the node spins: a signal never raises, the spin loop ends
-_CUTTABLE = threading.Event()  # inside `interruptible` during start-up: a signal raises SystemExit
+
+class Flag:
+    """A flag the signal handler may set and read. Not a threading.Event: its set() takes a lock, and
+    Python runs a handler between any two bytecodes of the main thread, so a second signal's handler
+    could run inside the first one's set(), with the lock held, and wait for it forever (seen in CI:
+    a second SIGTERM right after the first). A bool is read and written whole under the GIL."""
+
+    def __init__(self) -> None:
+        self._value = False
+
+    def set(self) -> None:
+        self._value = True
+
+    def clear(self) -> None:
+        self._value = False
+
+    def is_set(self) -> bool:
+        return self._value
+
+
+SIGNALLED = Flag()  # SIGINT / SIGTERM arrived: the process is on its way out
+SPINNING = Flag()  # the node spins: a signal never raises, the spin loop ends
+_CUTTABLE = Flag()  # inside `interruptible` during start-up: a signal raises SystemExit
 
 
 def install() -> None:
