@@ -40,18 +40,30 @@ def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOU
 
 
 class NodeProcess:
-    """One node as its console script (`<venv>/bin/<module> --ros-args ...`, what `ros2 run` starts), output
-    kept in a file."""
+    """One node as its console script (`<venv>/bin/<module> --ros-args ...`, what `ros2 run` starts), or with
+    `as_module` as `python -m stereo_depth.nodes.<module>`; output kept in a file."""
 
     def __init__(
-        self, module: str, namespace: str, env: dict[str, str], log_dir: Path, args: Iterable[str] = ()
+        self,
+        module: str,
+        namespace: str,
+        env: dict[str, str],
+        log_dir: Path,
+        args: Iterable[str] = (),
+        *,
+        as_module: bool = False,
     ) -> None:
         self.name = module
         self.namespace = namespace
         self.log = log_dir / f"{namespace.strip('/').replace('/', '_')}_{module}.log"
+        command = (
+            [sys.executable, "-m", f"stereo_depth.nodes.{module}"]
+            if as_module
+            else [Path(sys.executable).with_name(module)]
+        )
         with self.log.open("wb") as out:
             self.process = subprocess.Popen(
-                [Path(sys.executable).with_name(module), "--ros-args", "-r", f"__ns:={namespace}", *args],
+                [*command, "--ros-args", "-r", f"__ns:={namespace}", *args],
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,

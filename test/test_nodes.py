@@ -561,18 +561,22 @@ def _catches(pid: int, sig: signal.Signals) -> bool:
     return bool(caught >> (sig - 1) & 1)
 
 
+@pytest.mark.parametrize("as_module", [False, True], ids=["console script", "python -m"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_at_any_moment_of_start_up_ends_the_node_quietly(
-    ros_env: dict[str, str], tmp_path: Path, sig: signal.Signals
+    ros_env: dict[str, str], tmp_path: Path, sig: signal.Signals, as_module: bool
 ) -> None:
-    """Ctrl-C (or a launch file's SIGTERM) right after the console script put its handlers in, while the
-    node's modules are still being imported, ends it with exit code 0 before it prints anything; so do
-    signals later in its start-up, without a traceback or an exception printed as ignored (an exception
-    raised inside an import or a callback, where it is swallowed and the node runs on)."""
+    """Ctrl-C (or a launch file's SIGTERM) right after the console script (or `python -m`) put its handlers
+    in, while the node's modules are still being imported, ends it with exit code 0 before it prints
+    anything; so do signals later in its start-up, without a traceback or an exception printed as ignored
+    (an exception raised inside an import or a callback, where it is swallowed and the node runs on)."""
     for delay in (0.0, 0.3, 0.8):
-        process = NodeProcess("stereo_node", f"/early_{sig.name.lower()}_{delay * 10:.0f}", ros_env, tmp_path)
+        namespace = f"/early_{sig.name.lower()}_{delay * 10:.0f}_{'m' if as_module else 's'}"
+        process = NodeProcess("stereo_node", namespace, ros_env, tmp_path, as_module=as_module)
         child = process.process
         wait_until(lambda c=child: c.poll() is not None or _catches(c.pid, signal.SIGTERM), "handlers", 60.0, 0.001)
+        if delay == 0.0 and child.poll() is None:  # the handlers came before the imports: no rclpy yet
+            assert "_rclpy_pybind11" not in Path(f"/proc/{child.pid}/maps").read_text()
         time.sleep(delay)
         code, output = process.stop(sig)
         assert code == 0, output
