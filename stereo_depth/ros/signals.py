@@ -1,8 +1,9 @@
 """Ctrl-C and SIGTERM end a node with exit code 0 and no traceback, whenever they arrive.
 
-The console scripts (`entry_points.py`) install the handlers before a node's imports, which take a
-second or more; `run_node` installs them for other ways in (`python -m`), and they stay in charge after
-`rclpy.init` (told to install none). A signal only sets `SIGNALLED`: an exception raised at an arbitrary
+The console scripts (`entry_points.py`) and `python -m stereo_depth.nodes.<node>` (the package's
+`__init__`) install the handlers before a node's imports, which take a second or more; `run_node`
+installs them for any other way in, and they stay in charge after `rclpy.init` (told to install none).
+A signal only sets `SIGNALLED`: an exception raised at an arbitrary
 bytecode comes out of an import as an ImportError, is printed and swallowed in a weakref callback or a
 `__del__` (the node then runs on), or lands inside rclpy's C++ calls or its executor half-way through
 building a Task. `run_node` looks at the flag before it starts rclpy, the spin loop within
