@@ -83,3 +83,20 @@ def compiled_census_core() -> None:
     from stereo_depth.core.census_sgm import compile_kernels
 
     compile_kernels()
+
+
+NODE_LOG_SHOWN = 6000  # characters of each node's output in a failing test's report
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
+    """A failing test's report ends with the output of the nodes that ran during it (their logs are files
+    in a temporary folder, where CI's report would never show them)."""
+    del item
+    report = yield
+    helpers = sys.modules.get("ros_helpers")  # loaded only by the tests that start nodes
+    if report.failed and call.when == "call" and helpers is not None:
+        for node in helpers.NodeProcess.started:
+            if node.stopped_at is None or node.stopped_at >= call.start:
+                report.sections.append((f"output of {node.fqn}", node.output()[-NODE_LOG_SHOWN:]))
+    return report

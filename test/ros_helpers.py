@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -41,7 +41,10 @@ def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOU
 
 class NodeProcess:
     """One node as its console script (`<venv>/bin/<module> --ros-args ...`, what `ros2 run` starts), or with
-    `as_module` as `python -m stereo_depth.nodes.<module>`; output kept in a file."""
+    `as_module` as `python -m stereo_depth.nodes.<module>`; output kept in a file. A failing test's report
+    shows the output of those running during it (`started`, `stopped_at`; conftest.py)."""
+
+    started: ClassVar[list[NodeProcess]] = []
 
     def __init__(
         self,
@@ -68,6 +71,8 @@ class NodeProcess:
                 stdout=out,
                 stderr=subprocess.STDOUT,
             )
+        self.stopped_at: float | None = None  # time.time() when stopped
+        NodeProcess.started.append(self)
 
     @property
     def fqn(self) -> str:
@@ -78,6 +83,7 @@ class NodeProcess:
 
     def stop(self, sig: signal.Signals = signal.SIGINT) -> tuple[int, str]:
         """Send `sig`, wait for the exit; returns (exit code, everything it printed)."""
+        self.stopped_at = self.stopped_at or time.time()
         if self.process.poll() is None:
             self.process.send_signal(sig)
             try:

@@ -13,6 +13,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from types import ModuleType
 
 import cv2
 
@@ -29,7 +30,7 @@ def use_threads(requested: int, sharing: int = 1) -> int:
     divided among `sharing` frames processed at once; returns the count. Cheap to call per frame: it
     acts only when the count changes or numba was loaded since (the census_sgm matcher loads it)."""
     count = requested if requested > 0 else max(1, available_cores() // max(sharing, 1))
-    numba = sys.modules.get("numba")
+    numba = _numba_if_loaded()
     key = (count, numba is not None)
     if getattr(_applied, "key", None) != key:
         cv2.setNumThreads(count)
@@ -42,10 +43,21 @@ def use_threads(requested: int, sharing: int = 1) -> int:
 def thread_counts() -> dict[str, int]:
     """The threads OpenCV and (once loaded) numba use for work started on this thread."""
     counts = {"opencv": cv2.getNumThreads()}
-    numba = sys.modules.get("numba")
+    numba = _numba_if_loaded()
     if numba is not None:
         counts["numba"] = numba.get_num_threads()
     return counts
+
+
+def _numba_if_loaded() -> ModuleType | None:
+    """numba once some code has imported it, else None (it is not loaded for its thread count alone).
+    While another thread is still importing it, sys.modules already holds the half-built module; the
+    import statement waits for that thread to finish, where sys.modules would hand it over unfinished."""
+    if "numba" not in sys.modules:
+        return None
+    import numba  # waits for a thread that is still importing it (see above)
+
+    return numba
 
 
 @contextmanager
