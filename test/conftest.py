@@ -77,7 +77,7 @@ def ros(ros_env: dict[str, str]) -> Iterator[Any]:
 
 @pytest.fixture(scope="session", autouse=True)
 def compiled_census_core() -> None:
-    """numba compiles census_sgm once per machine (~30 s, then cached beside the module): do it here,
+    """numba compiles census_sgm once per machine (a minute or two, then cached beside the module): do it here,
     as `stereo-depth compile` does, before any test waits with a timeout on a node process that would
     otherwise compile it."""
     from stereo_depth.core.census_sgm import compile_kernels

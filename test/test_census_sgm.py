@@ -328,10 +328,12 @@ def numba_cache_name(source_folder: Path) -> str:
     return f"{source_folder.name}_{hashlib.sha1(str(source_folder).encode()).hexdigest()}"
 
 
-def test_compile_command_builds_the_core_ahead_and_names_its_cache(tmp_path: Path) -> None:
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_compile_command_builds_the_core_ahead_and_names_its_cache(tmp_path: Path, jobs: str) -> None:
     """Into a cache of its own (NUMBA_CACHE_DIR, which numba prefers) holding this session's kernels but
     two (numba loads the rest: same sources, same numba; the big ones take minutes to build), `stereo-depth
-    compile` must build the two missing ones (the census transform, the hole filler) and name that cache."""
+    compile` must build the two missing ones (the census transform, the hole filler) and name that cache,
+    in one process or split over two (each share builds the census transform; only one the filler)."""
     core = Path(__file__).resolve().parents[1] / "stereo_depth" / "core"
     cache = tmp_path / "numba" / numba_cache_name(core / "census_sgm")
     missing = ("census._census-*", "fill._fill_rows-*")
@@ -341,9 +343,14 @@ def test_compile_command_builds_the_core_ahead_and_names_its_cache(tmp_path: Pat
     shutil.copytree(temporal_cache, tmp_path / "numba" / numba_cache_name(core), ignore=shutil.ignore_patterns("*.pyc"))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
     run = subprocess.run(
-        [sys.executable, "-m", "stereo_depth.cli", "compile"], env=env, capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "stereo_depth.cli", "compile", "--jobs", jobs],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert run.returncode == 0, run.stderr
+    assert f"({jobs} processes)" in run.stdout
     assert Path(run.stdout.strip().rsplit("numba cache: ", 1)[1]) == cache
     for kernel in missing:
         assert any(cache.glob(f"{kernel}.nbc")), f"{kernel}: its machine code must be cached"

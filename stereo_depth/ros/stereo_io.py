@@ -235,14 +235,14 @@ class StereoIONode(Node):
 
     def _load_census_core(self) -> None:
         """The census core's machine code now, before any input is subscribed, rather than on the first
-        frame: numba loads it from its cache in about a second, or compiles it first (about 30 s) on the
+        frame: numba loads it from its cache in about a second, or compiles it first (one to two minutes) on the
         first start after installing, while frames would wait. A matcher switched to at run time still
         loads on its first frame."""
         from stereo_depth.core.census_sgm import compile_kernels as load_census_core  # numba: census nodes only
 
         self.get_logger().info(
             "census_sgm core: loading its machine code (compiled on the first start after installing, "
-            "about 30 s; `stereo-depth compile` does that ahead)"
+            "one to two minutes; `stereo-depth compile` does that ahead)"
         )
         start = time.perf_counter()
         cache = load_census_core()

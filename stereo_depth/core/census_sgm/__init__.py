@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -145,17 +146,22 @@ def _lap(timings: dict[str, float] | None, step: str, start: float) -> float:
     return now
 
 
-def compile_kernels() -> str:
+#: (window_size, paths) with kernels of their own: window 1 and 3, the strips (6 paths) and the sweeps (8)
+KERNEL_VARIANTS = tuple(itertools.product((1, 3), (6, 8)))
+
+
+def compile_kernels(variants: Iterable[tuple[int, int]] = KERNEL_VARIANTS, *, fill: bool = True) -> str:
     """Compile every kernel (or load it from numba's cache) now; returns the cache folder.
 
-    The first compile takes ~30 s per install, then each process loads machine code in well under
-    a second: ``stereo-depth compile`` runs this at install time so a robot's first frame does not
-    wait. The cache sits in NUMBA_CACHE_DIR when that is set, else in ``__pycache__`` beside the kernel
-    modules when writable (else numba's per-user folder).
+    The first compile takes one to two minutes per install, then each process loads machine code in
+    well under a second: ``stereo-depth compile`` runs this at install time so a robot's first frame
+    does not wait (and splits it over two processes: ``variants`` and ``fill`` name a share). The cache
+    sits in NUMBA_CACHE_DIR when that is set, else in ``__pycache__`` beside the kernel modules when
+    writable (else numba's per-user folder).
     """
     image = np.zeros((24, 48), np.uint8)
-    for window_size, paths in itertools.product((1, 3), (6, 8)):  # window 1, strips and sweeps: their own kernels
-        disparity, _ = census_sgm(
+    for window_size, paths in variants:
+        census_sgm(
             image,
             image,
             min_disparity=0,
@@ -167,10 +173,12 @@ def compile_kernels() -> str:
             disp12_max_diff=1,
             paths=paths,
         )
-    holes = np.full_like(disparity, 20.0)
-    holes[::2, ::3] = np.nan  # some holes, not all: a disparity with none or only holes fills nothing
-    fill_holes(holes, image)
-    fill_holes(holes, image, scanline=False)
+    if fill:
+        holes = np.full(image.shape, 20.0, np.float32)
+        holes[::2, ::3] = np.nan  # some holes, not all: a disparity with none or only holes fills nothing
+        fill_holes(holes, image)
+        fill_holes(holes, image, scanline=False)
+    compile_all()
     return str(vars(transform)["_census"]._cache._cache_path)  # the dispatcher compile_all put there
 
 
