@@ -43,6 +43,7 @@ from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
+from stereo_depth.ros.stereo_io import GIL_SWITCH_S
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
 from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 from stereo_depth.sync import StereoSet, SyncCounters
@@ -328,6 +329,19 @@ def test_the_signal_handler_takes_no_lock() -> None:
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert run.stdout.split() == ["True"], run.stdout + run.stderr
+
+
+def test_a_node_process_hands_the_gil_over_sooner_than_python_does(tmp_path: Path) -> None:
+    """The census core takes the GIL back between its kernels many times a frame; beside the executor's
+    Python, Python's 5 ms hand-over made a match several times slower (bench/gil_handover.py). A node's
+    main sets the shorter interval before anything else runs (here one that then refuses its params file)."""
+    code = (
+        "import sys; from stereo_depth.nodes.stereo_node import main; "
+        f"code = main(['stereo_node', '--ros-args', '--params-file', '{tmp_path / 'missing.yaml'}']); "
+        "print(code, sys.getswitchinterval())"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    assert run.stdout.split() == ["2", str(GIL_SWITCH_S)], run.stdout + run.stderr
 
 
 @pytest.mark.parametrize("step", ["open_outputs", "start_workers", "_warn_unused_overrides"])

@@ -14,6 +14,7 @@ OpenCV releases the GIL, so the executor keeps receiving while a frame is proces
 from __future__ import annotations
 
 import itertools
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -67,6 +68,11 @@ QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
 IDLE_FLUSH_S = 5.0
 SIGNAL_POLL_S = 0.25  # the longest a SIGINT / SIGTERM waits for the spin to return to Python
 RECEIPTS_KEPT = 64  # receipt times of the first input's newest messages, looked up when their set is complete
+# How long a thread running Python may keep the GIL while another waits for it (Python's default: 5 ms). The
+# census core returns to Python between its kernels dozens of times a frame, and each time waits for the GIL
+# while the executor or the cloud stage runs Python: at 5 ms that took its match from 50 to 180 ms beside
+# one busy Python thread, at 0.5 ms to 100 ms, what sharing a core costs (bench/gil_handover.py).
+GIL_SWITCH_S = 0.0005
 
 
 class StereoIONode(Node):
@@ -533,6 +539,7 @@ def run_node(factory: Callable[[], StereoIONode], args: list[str] | None = None)
     signals.install()
     if signals.SIGNALLED.is_set():  # during the imports
         return 0
+    sys.setswitchinterval(GIL_SWITCH_S)
     profile = use_large_message_profile()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
