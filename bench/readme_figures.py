@@ -146,6 +146,8 @@ def profiles_and_accuracy(run: Run) -> bool:
     print("\nThe census core's matching against OpenCV's SGBM 3-way, 128 disparities (`bench/pipeline_stages.py`):\n")
     arguments = ("--profiles", "default", "quality", "--disparity-range", "128")
     ok = run.bench("pipeline_stages.py", *arguments, quick=("--repeat", "2")) and ok
+    print("\nThe match beside a thread running Python, by the GIL's hand-over interval (`bench/gil_handover.py`):\n")
+    ok = run.bench("gil_handover.py", quick=("--repeat", "2")) and ok
     print()
     return readme_e2e.quality(run.work, run.args.quick) and ok
 
