@@ -6,10 +6,10 @@ GIL until the thread holding it is asked to let go: every `sys.setswitchinterval
 nodes' `GIL_SWITCH_S` in ros/stereo_io.py). OpenCV's SGBM is one call, so it waits once a frame.
 
 Per matcher (`default`: OpenCV SGBM 3-way; `quality`: census_sgm, 6 paths) and interval (Python's 5 ms, the
-nodes' 0.5 ms): median match ms alone and beside one thread running Python bytecode, on a worker thread
-with the process's cores (as a node's first stage), interleaved frame by frame. 640x480 EuRoC pair, 128
-disparities. With two cores, a busy second thread leaves the match one core: about 2x its time alone is
-what sharing costs; more is the wait for the GIL.
+nodes' 0.5 ms): median match ms alone and beside one thread running Python bytecode, on one long-lived
+worker thread with the process's cores (as a node's first stage), interleaved frame by frame. 640x480
+EuRoC pair, 128 disparities. With two cores, a busy second thread leaves the match one core: about 2x
+its time alone is what sharing costs; more is the wait for the GIL.
 
     .venv/bin/python bench/gil_handover.py [--repeat 9]
 """
@@ -17,6 +17,7 @@ what sharing costs; more is the wait for the GIL.
 from __future__ import annotations
 
 import argparse
+import queue
 import statistics
 import sys
 import threading
@@ -46,18 +47,28 @@ def python_thread(stop: threading.Event) -> None:
             total += i
 
 
-def on_worker_thread(work: Callable[[], float]) -> float:
-    """`work` on a fresh thread with this process's cores for its numba and OpenCV work, as a node's stage."""
-    result: list[float] = []
+class Worker:
+    """One long-lived thread that runs what it is given, with this process's cores for its numba and
+    OpenCV work, as a node's first stage."""
 
-    def run() -> None:
+    def __init__(self) -> None:
+        self._jobs: queue.Queue[Callable[[], float] | None] = queue.Queue()
+        self._results: queue.Queue[float] = queue.Queue()
+        self._thread = threading.Thread(target=self._loop)
+        self._thread.start()
+
+    def run(self, work: Callable[[], float]) -> float:
+        self._jobs.put(work)
+        return self._results.get()
+
+    def stop(self) -> None:
+        self._jobs.put(None)
+        self._thread.join()
+
+    def _loop(self) -> None:
         use_threads(0)
-        result.append(work())
-
-    thread = threading.Thread(target=run)
-    thread.start()
-    thread.join()
-    return result[0]
+        while (work := self._jobs.get()) is not None:
+            self._results.put(work())
 
 
 def main() -> None:
@@ -70,8 +81,9 @@ def main() -> None:
     def match_ms(pipeline: StereoPipeline) -> float:
         return float(pipeline.match(left, right, camera).timings_ms["match"])
 
+    worker = Worker()
     for pipeline in pipelines.values():  # loads numba's kernels, warms the caches
-        on_worker_thread(partial(match_ms, pipeline))
+        worker.run(partial(match_ms, pipeline))
     cases = [(name, interval, busy) for name in pipelines for interval in INTERVALS for busy in (False, True)]
     samples: dict[tuple[str, str, bool], list[float]] = {case: [] for case in cases}
     for _ in range(args.repeat):
@@ -82,10 +94,11 @@ def main() -> None:
             if other is not None:
                 other.start()
                 time.sleep(0.05)
-            samples[name, interval, busy].append(on_worker_thread(partial(match_ms, pipelines[name])))
+            samples[name, interval, busy].append(worker.run(partial(match_ms, pipelines[name])))
             stop.set()
             if other is not None:
                 other.join()
+    worker.stop()
     sys.setswitchinterval(PYTHON_DEFAULT_S)
     print(f"640x480, 128 disparities, {args.repeat} frames per case, interleaved; {time.strftime('%Y-%m-%d')}")
     columns = ("matcher", "GIL hand-over", "alone ms", "beside a Python thread ms", "beside / alone")
