@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +117,10 @@ def pair_inputs(ros: RosHarness, nodes: dict[str, NodeProcess]) -> Inputs:
         "/sip/right/image_rect": Image,
         "/sip/right/camera_info": CameraInfo,
     }
-    return Inputs(ros, topics)
+    inputs = Inputs(ros, topics)
+    disparity = outputs_matched(ros, DisparityImage, "/sip/disparity")
+    wait_until_every_node_delivers(lambda stamp: publish_pair(inputs, stamp), disparity)
+    return inputs
 
 
 @pytest.fixture(scope="module")
@@ -194,17 +197,17 @@ def publish_cloud_inputs(inputs: Inputs, stamp: int, encoding: str, baseline: bo
 CLOUDS = {"/sip/points2": (32, "rgb"), "/sip_xyz/points2": (16, None), "/sip_packed/points2": (16, "rgb")}
 
 
-def wait_until_every_node_delivers(inputs: Inputs, collectors: list[Any], every_s: float = 3.0) -> None:
-    """Probe sets until each cloud node has published one. Publisher-side matches were not enough under
-    load: once in five runs beside stress-ng, one of the three nodes never received the right camera_info
-    of the first sets sent after every publisher had matched it (its log: "no messages on
-    /sip/right/camera_info ... while /sip/disparity ... arrive"), while the sets after them arrived. The
-    frames the test compares go out once every node has delivered a probe."""
+def wait_until_every_node_delivers(publish: Callable[[int], None], collectors: list[Any], every_s: float = 3.0) -> None:
+    """Probe sets (`publish(stamp)`) until each node has published one. Publisher-side matches were not
+    enough under load: once in five runs beside stress-ng, one of the three cloud nodes never received the
+    right camera_info of the first sets sent after every publisher had matched it (its log: "no messages
+    on /sip/right/camera_info ... while /sip/disparity ... arrive"), while the sets after them arrived; the
+    disparity node once so in CI. The frames a test compares go out once every node has delivered a probe."""
     probes: list[int] = []
     deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline:
         probes.append(next(_stamps))
-        publish_cloud_inputs(inputs, probes[-1], "32FC1")
+        publish(probes[-1])
         try:
             wait_until(lambda: all(any(c.find(s) for s in probes) for c in collectors), "a probe cloud", every_s)
         except TimeoutError:
@@ -218,7 +221,7 @@ def test_point_cloud_node_reads_a_disparity_without_encoding_in_both_point_steps
     ros: RosHarness, pair_inputs: Inputs, cloud_inputs: Inputs
 ) -> None:
     collectors = outputs_matched(ros, PointCloud2, *CLOUDS)
-    wait_until_every_node_delivers(cloud_inputs, collectors)
+    wait_until_every_node_delivers(lambda stamp: publish_cloud_inputs(cloud_inputs, stamp, "32FC1"), collectors)
     no_encoding, with_encoding = next(_stamps), next(_stamps)
     publish_cloud_inputs(cloud_inputs, no_encoding, "")
     publish_cloud_inputs(cloud_inputs, with_encoding, "32FC1")
