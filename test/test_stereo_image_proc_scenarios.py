@@ -209,11 +209,15 @@ def wait_until_every_node_delivers(publish: Callable[[int], None], collectors: l
         probes.append(next(_stamps))
         publish(probes[-1])
         try:
-            wait_until(lambda: all(any(c.find(s) for s in probes) for c in collectors), "a probe cloud", every_s)
+            wait_until(
+                lambda: all(any(c.find(s) for s in probes) for c in collectors),
+                "a probe output from every node",
+                every_s,
+            )
         except TimeoutError:
             continue
         return
-    msg = f"no cloud from every node after {len(probes)} probes"
+    msg = f"no output from every node after {len(probes)} probes"
     raise TimeoutError(msg)
 
 

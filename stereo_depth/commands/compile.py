@@ -12,19 +12,13 @@ import argparse
 import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
-from typing import NamedTuple
-
 
 # The kernels split into two shares of about equal compile time on a fresh cache (a 2-core Intel Xeon,
-# Emerald Rapids: 67 s and 79 s side by side, 140 s in one process): the strips' kernel (window 1, 6 paths,
-# with its constant-count copies), and the rest. Each share builds the census transform and the
-# post-processing it calls as well.
-class Share(NamedTuple):
-    variants: tuple[tuple[int, int], ...]  # census_sgm's (window_size, paths)
-    others: bool  # the hole filler, the temporal filter and the RVL codec too
-
-
-SHARES = (Share(((1, 6),), others=False), Share(((1, 8), (3, 6), (3, 8)), others=True))
+# Emerald Rapids: 67 s and 79 s side by side, 140 s in one process): share 0 is the strips' kernel (census_sgm's
+# window 1, 6 paths, with its constant-count copies), share 1 every other kernel. Each builds the census
+# transform and the post-processing it calls as well.
+STRIPS = (1, 6)
+SHARES = 2
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -34,8 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     parser.add_argument(
         "--jobs",
         type=int,
-        choices=range(1, len(SHARES) + 1),
-        help=f"processes that compile side by side (default: this machine's cores, at most {len(SHARES)})",
+        choices=range(1, SHARES + 1),
+        help=f"processes that compile side by side (default: this machine's cores, at most {SHARES})",
     )
     parser.set_defaults(run=run)
 
@@ -43,15 +37,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def run(args: argparse.Namespace) -> int:
     from stereo_depth.core.threads import available_cores
 
-    jobs = args.jobs or min(len(SHARES), available_cores())
+    jobs = args.jobs or min(SHARES, available_cores())
     start = time.perf_counter()
     if jobs > 1:
         # spawn: a fresh interpreter (a fork would copy this one's threads and numba's state)
-        with ProcessPoolExecutor(jobs - 1, mp_context=get_context("spawn")) as pool:
-            others = [pool.submit(build, share) for share in range(1, len(SHARES))]
+        with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+            other = pool.submit(build, 1)
             build(0)
-            for other in others:
-                other.result()
+            other.result()
     # everything, in this process: loads what the shares cached, builds what they did not (all with --jobs 1)
     cache = build(None)
     print(f"numba kernels ready in {time.perf_counter() - start:.1f} s ({jobs} processes); numba cache: {cache}")
@@ -59,14 +52,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def build(share: int | None) -> str:
-    """Compile (or load) the kernels of one of `SHARES`, or with None all of them; returns the cache folder."""
+    """Compile (or load) the kernels of share 0 or 1 (`SHARES`), or with None all of them; returns the cache
+    folder."""
     import numpy as np
 
     from stereo_depth.core import temporal
     from stereo_depth.core.census_sgm import KERNEL_VARIANTS, compile_kernels
     from stereo_depth.core.rvl import rvl_compress
 
-    variants, others = (KERNEL_VARIANTS, True) if share is None else SHARES[share]
+    variants = [v for v in KERNEL_VARIANTS if share is None or (v == STRIPS) == (share == 0)]
+    others = share != 0  # the hole filler, the temporal filter and the RVL codec
     cache = compile_kernels(variants, fill=others)
     if others:
         temporal.compile_kernels()
