@@ -4,11 +4,13 @@ default event handlers.
 Each time the executor wakes (an input message, a timer) it rebuilds its wait set in Python from every
 subscription, timer, service, guard condition and QoS-event handler of the node, holding the GIL, and a
 frame wakes it about three times. rclpy gives every publisher two event handlers unless told otherwise;
-stereo_node's outputs carry one (stereo_depth/ros/qos.py: output_events) and its inputs two (lost messages,
-a publisher of another type; AdaptiveSubscription polls for publishers instead). The twin node here has the
-same publishers, subscriptions and timers with rclpy's default handlers, plus the lost-message one on each
-subscription: the baseline, in the same process and run. Each is timed alone with an executor of its
-own, `spin_once(timeout_sec=0)` with nothing ready, in alternating batches; the medians are printed.
+stereo_node's outputs carry none (stereo_depth/ros/qos.py: SubscriberWatch looks at the graph for
+incompatible subscribers instead) and its inputs one, for lost messages (AdaptiveSubscription polls for
+publishers, and for those of another type); rclpy's own /parameter_events publisher keeps its two. The
+twin node here has the same publishers, subscriptions and timers with rclpy's default handlers, plus the
+lost-message one on each subscription: the baseline, in the same process and run. Each is timed alone
+with an executor of its own, `spin_once(timeout_sec=0)` with nothing ready, in alternating batches; the
+medians are printed.
 
     .venv/bin/python bench/executor_wake.py [--batches 10] [--spins 200] [--markdown]
 """

@@ -8,14 +8,17 @@ the graph API, as `ros2 topic info -v` shows it.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rclpy.qos import ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_helpers import NodeProcess, RosHarness, reliable_qos, wait_until
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from stereo_msgs.msg import DisparityImage
+
+from stereo_depth.ros.stereo_io import QOS_FULL_RECHECK_S
 
 NS = "/qos"
 SPLIT = "/qos_split"
@@ -125,19 +128,54 @@ def test_an_override_for_no_topic_of_the_node_is_named_once_with_the_closest_one
     assert f"{NS}/points2.publisher.reliability'?)" in lines[0]
 
 
+def incompatible_lines(node: NodeProcess, topic: str) -> list[str]:
+    return [
+        line for line in node.output().splitlines() if "requesting incompatible QoS" in line and f"'{topic}'" in line
+    ]
+
+
+@pytest.mark.parametrize(
+    ("output", "msg_type", "qos", "policy"),
+    [
+        ("disparity", DisparityImage, reliable_qos(1), "RELIABILITY"),  # disparity is best effort here
+        ("depth", Image, QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL), "DURABILITY"),
+    ],  # (our outputs are volatile)
+)
 def test_a_subscriber_an_output_cannot_serve_is_warned_about_once_with_the_policy(
-    ros: RosHarness, node: NodeProcess
+    ros: RosHarness, node: NodeProcess, output: str, msg_type: type, qos: QoSProfile, policy: str
 ) -> None:
-    """disparity is best effort here, so a reliable subscriber gets nothing: the node says so, as rclpy's
-    default handler would, and nothing else about it (our outputs carry only that one event handler)."""
-    subscription = ros.node.create_subscription(DisparityImage, f"{NS}/disparity", lambda _msg: None, reliable_qos(1))
+    """A subscriber asking for QoS the output does not offer gets nothing: the node says so once, in
+    rclpy's words, naming the policy (found by looking at the graph: outputs carry no event handlers)."""
+    topic = f"{NS}/{output}"
+    subscription = ros.node.create_subscription(msg_type, topic, lambda _msg: None, qos)
     try:
-        wait_until(lambda: "requesting incompatible QoS" in node.output(), "the incompatible-QoS warning")
-        lines = [line for line in node.output().splitlines() if "requesting incompatible QoS" in line]
+        wait_until(lambda: incompatible_lines(node, topic), "the incompatible-QoS warning")
+        time.sleep(2 * QOS_FULL_RECHECK_S)  # the node's looks at every endpoint, which warn no second time
+        lines = incompatible_lines(node, topic)
         assert len(lines) == 1 and "WARN" in lines[0], lines
-        assert f"topic '{NS}/disparity'" in lines[0] and "Last incompatible policy: RELIABILITY" in lines[0]
+        assert f"Last incompatible policy: {policy}" in lines[0], lines[0]
     finally:
         ros.node.destroy_subscription(subscription)
+
+
+def test_a_publisher_of_another_type_on_an_input_is_warned_about_once_with_both_types(
+    ros: RosHarness, node: NodeProcess
+) -> None:
+    """A compressed stream published on right/image_raw never matches the node's Image subscription: the
+    node names the topic and both types once, and its subscription stays as the Image publishers want it."""
+    topic = f"{NS}/right/image_raw"
+    before = subscription_reliability(ros, topic)
+    other = ReliabilityPolicy.BEST_EFFORT if before == ReliabilityPolicy.RELIABLE else ReliabilityPolicy.RELIABLE
+    wrong = ros.publisher(CompressedImage, topic, other)  # an Image publisher offering this would move it
+    try:
+        expected = f"Incompatible type on topic '{topic}': a publisher sends sensor_msgs/msg/CompressedImage"
+        wait_until(lambda: expected in node.output(), "the incompatible-type warning")
+        time.sleep(2 * QOS_FULL_RECHECK_S)
+        lines = [line for line in node.output().splitlines() if expected in line]
+        assert len(lines) == 1 and "WARN" in lines[0] and "this node takes sensor_msgs/msg/Image" in lines[0], lines
+        assert subscription_reliability(ros, topic) == before
+    finally:
+        ros.node.destroy_publisher(wrong)
 
 
 def test_an_override_value_rclpy_cannot_apply_stops_the_node_with_the_reason(

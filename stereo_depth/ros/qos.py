@@ -20,23 +20,21 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from rclpy.event_handler import (
-    IncompatibleTypeInfo,
-    PublisherEventCallbacks,
-    QoSMessageLostInfo,
-    QoSOfferedIncompatibleQoSInfo,
-    SubscriptionEventCallbacks,
-)
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
+    QoSCompatibility,
     QoSPolicyKind,
     QoSProfile,
     ReliabilityPolicy,
+    qos_check_compatible,
     qos_policy_name_from_kind,
 )
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from stereo_depth.errors import ParameterError
 
@@ -54,23 +52,59 @@ def output_qos() -> QoSProfile:
     )
 
 
-def output_events(node: Node, topic: str) -> PublisherEventCallbacks:
-    """One event handler per output: the incompatible-QoS warning, in rclpy's words.
+def type_name(msg_type: Any) -> str:
+    """A message class's ROS type name as the graph reports it, e.g. sensor_msgs/msg/Image."""
+    return f"{msg_type.__module__.split('.')[0]}/msg/{msg_type.__name__}"
 
-    rclpy gives each publisher two handlers by default, this one and one for a subscriber of another
-    type, which that subscriber's own node reports. Its standard executor rebuilds the wait set from
-    every handler in Python each time it wakes, holding the GIL, about three times a frame
-    (bench/executor_wake.py).
+
+def broken_policy(offered: QoSProfile, requested: QoSProfile) -> QoSPolicyKind:
+    """The policy that keeps a subscription asking for `requested` from a publisher offering `offered`,
+    given that `qos_check_compatible` found the two incompatible."""
+    if requested.reliability == ReliabilityPolicy.RELIABLE and offered.reliability == ReliabilityPolicy.BEST_EFFORT:
+        return QoSPolicyKind.RELIABILITY
+    if requested.durability == DurabilityPolicy.TRANSIENT_LOCAL and offered.durability == DurabilityPolicy.VOLATILE:
+        return QoSPolicyKind.DURABILITY
+    wanted, given = requested.deadline.nanoseconds, offered.deadline.nanoseconds  # 0: none (infinite)
+    if wanted > 0 and not 0 < given <= wanted:
+        return QoSPolicyKind.DEADLINE
+    return QoSPolicyKind.LIVELINESS
+
+
+class SubscriberWatch:
+    """rclpy's incompatible-QoS warning for one output, found by looking at the graph, not by an event handler.
+
+    rclpy gives each publisher two event handlers, and its standard executor rebuilds its wait set from
+    every handler of the node in Python each time it wakes, holding the GIL, several times a frame
+    (bench/executor_wake.py). So outputs carry none: the node calls `check` from a timer, which looks
+    at the topic's subscriptions when their count moved (or `everything`), and warns once about each
+    that asks for QoS the output does not offer. A subscriber of another type is its own node's to report.
     """
 
-    def warn(event: QoSOfferedIncompatibleQoSInfo) -> None:
-        node.get_logger().warning(
-            f"New subscription discovered on topic '{node.resolve_topic_name(topic)}', requesting incompatible "
-            f"QoS. No messages will be sent to it. Last incompatible policy: "
-            f"{qos_policy_name_from_kind(event.last_policy_kind)}"
-        )
+    def __init__(self, node: Node, publisher: Publisher) -> None:
+        self._node, self._publisher = node, publisher
+        self._count = -1  # the topic's subscription count at the last look; -1: not looked yet
+        self._warned: set[bytes] = set()  # endpoint GIDs warned about
 
-    return PublisherEventCallbacks(incompatible_qos=warn, use_default_callbacks=False)
+    def check(self, *, everything: bool = False) -> None:
+        topic = self._publisher.topic_name
+        count = self._node.count_subscribers(topic)
+        if count == self._count and not everything:
+            return
+        self._count = count
+        offered = self._publisher.qos_profile
+        seen = set()
+        for info in self._node.get_subscriptions_info_by_topic(topic):
+            gid = bytes(info.endpoint_gid)
+            seen.add(gid)
+            if gid in self._warned or qos_check_compatible(offered, info.qos_profile)[0] != QoSCompatibility.ERROR:
+                continue
+            self._warned.add(gid)
+            policy = qos_policy_name_from_kind(broken_policy(offered, info.qos_profile))
+            self._node.get_logger().warning(
+                f"New subscription discovered on topic '{topic}', requesting incompatible QoS. No messages will be "
+                f"sent to it. Last incompatible policy: {policy}"
+            )
+        self._warned &= seen
 
 
 def input_qos(reliability: ReliabilityPolicy, depth: int) -> QoSProfile:
@@ -104,8 +138,9 @@ class AdaptiveSubscription:
     `recheck()` recreates it when the publishers' offer calls for the other reliability. The node calls
     `recheck()` from a timer, and within QOS_RECHECK_S when `publishers_changed()` (a publisher came or
     went). That is polled, not evented: each event handler costs every wake of rclpy's executor (see
-    `output_events`), and a count of the topic's publishers catches the matched and the incompatible ones
-    alike. The subscription carries two handlers: lost messages (counted) and a publisher of another type.
+    `SubscriberWatch`), and a count of the topic's publishers catches the matched and the incompatible ones
+    alike. `recheck()` also warns, once, about each publisher of another type, which never matches. The
+    subscription carries one handler, for lost messages (counted).
     The policies the user overrode (`qos_overrides.<topic>.subscription.*`) are applied to every
     recreation; a reliability override replaces the adaptive rule for this topic.
     """
@@ -123,6 +158,8 @@ class AdaptiveSubscription:
     ) -> None:
         self._node = node
         self._msg_type = msg_type
+        self._type_name = type_name(msg_type)
+        self._wrong_types: set[bytes] = set()  # GIDs of publishers of another type, warned about
         self.topic = node.resolve_topic_name(topic)
         self._callback = callback
         self._policy = policy
@@ -144,9 +181,7 @@ class AdaptiveSubscription:
         return policy
 
     def _create(self, overridable: Iterable[QoSPolicyKind] = ()) -> Any:
-        events = SubscriptionEventCallbacks(
-            message_lost=self._lost, incompatible_type=self._wrong_type, use_default_callbacks=False
-        )
+        events = SubscriptionEventCallbacks(message_lost=self._lost, use_default_callbacks=False)
         with override_errors():
             return self._node.create_subscription(
                 self._msg_type,
@@ -163,9 +198,6 @@ class AdaptiveSubscription:
         changed, self._publishers = count != self._publishers, count
         return changed
 
-    def _wrong_type(self, _info: IncompatibleTypeInfo) -> None:
-        self._node.get_logger().warning(f"Incompatible type on topic '{self.topic}', no messages will be sent to it.")
-
     def _lost(self, info: QoSMessageLostInfo) -> None:
         self._on_lost(int(info.total_count_change))
 
@@ -179,7 +211,9 @@ class AdaptiveSubscription:
         self.recheck(force=changed)
 
     def recheck(self, *, force: bool = False) -> None:
-        offered = [info.qos_profile.reliability for info in self._node.get_publishers_info_by_topic(self.topic)]
+        publishers = self._node.get_publishers_info_by_topic(self.topic)
+        self._warn_wrong_types(publishers)
+        offered = [info.qos_profile.reliability for info in publishers if info.topic_type == self._type_name]
         wanted = choose_reliability(self._effective(self._policy), offered, self.reliability)
         if wanted == self.reliability and not force:
             return
@@ -190,6 +224,15 @@ class AdaptiveSubscription:
             f"{self.topic}: subscribed {wanted.name.lower()} (publishers offer "
             f"{', '.join(sorted({r.name.lower() for r in offered})) or 'nothing yet'})"
         )
+
+    def _warn_wrong_types(self, publishers: list[TopicEndpointInfo]) -> None:
+        wrong = {bytes(info.endpoint_gid): info.topic_type for info in publishers if info.topic_type != self._type_name}
+        for gid in wrong.keys() - self._wrong_types:
+            self._node.get_logger().warning(
+                f"Incompatible type on topic '{self.topic}': a publisher sends {wrong[gid]}, this node takes "
+                f"{self._type_name}; no messages will be received from it."
+            )
+        self._wrong_types = set(wrong)
 
 
 def given_overrides(node: Node, topic: str, entity: str) -> dict[QoSPolicyKind, Any]:

@@ -24,6 +24,7 @@ from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
@@ -51,7 +52,7 @@ from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog, error_key
 from stereo_depth.ros.qos import (
     AdaptiveSubscription,
-    output_events,
+    SubscriberWatch,
     output_qos,
     override_errors,
     unused_overrides_line,
@@ -61,8 +62,10 @@ from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet, Synchronizer
 
 T = TypeVar("T")
-QOS_RECHECK_S = 0.25  # a publisher that came or went (AdaptiveSubscription.publishers_changed) is looked at within this
-QOS_FULL_RECHECK_S = 2.0  # fallback: look at every input's publishers
+# An input's publisher or an output's subscriber that came or went (AdaptiveSubscription, SubscriberWatch) is
+# looked at within this; every one of them at the second.
+QOS_RECHECK_S = 0.25
+QOS_FULL_RECHECK_S = 2.0
 # No input for this long: sets waiting only for a camera_info go out. Longer than a reliable writer takes
 # to repair a lost sample (Fast DDS sends its heartbeat every 3 s), so a repaired camera_info still counts.
 IDLE_FLUSH_S = 5.0
@@ -104,6 +107,7 @@ class StereoIONode(Node):
         self.pipeline: StereoPipeline | None = None
         self._info_files: dict[int, tuple[str, int, CameraInfo]] = {}
         self._outputs: list[Publisher] = []
+        self._watches: list[SubscriberWatch] = []  # one per output: its incompatible-QoS warnings
         self._inputs: list[AdaptiveSubscription] = []
         self._io_timers: list[Timer] = []
         self._worker: LatestWorker | None = None
@@ -189,7 +193,7 @@ class StereoIONode(Node):
         self.deactivate_io()
         for publisher in self._outputs:
             self.destroy_output(publisher)
-        self._outputs = []
+        self._outputs, self._watches = [], []
         self.pipeline = None
         self._info_files = {}
 
@@ -276,9 +280,10 @@ class StereoIONode(Node):
                 topic,
                 qos,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                event_callbacks=output_events(self, topic),
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),  # SubscriberWatch warns
             )
         self._outputs.append(publisher)
+        self._watches.append(SubscriberWatch(self, publisher))
         return publisher
 
     def create_output(self, msg_type: Any, topic: str, qos: QoSProfile | int, **options: Any) -> Publisher:
@@ -452,9 +457,13 @@ class StereoIONode(Node):
                 subscription.configure(new.reliability, new.queue_size)
 
     def _recheck_qos(self, everything: bool) -> None:
+        """Each input's reliability and publishers' types, each output's subscribers' QoS: looked at when
+        their count moved, or `everything`."""
         for subscription in self._inputs:
             if subscription.publishers_changed() or everything:
                 subscription.recheck()
+        for watch in self._watches:
+            watch.check(everything=everything)
 
     def _run_frame(self, job: tuple[int, int, float, tuple[Any, ...]]) -> None:
         self._frame.sequence, stamp_ns, self._frame.received_s, messages = job
