@@ -343,9 +343,11 @@ def proc_cpu_s(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / TICK
 
 
-def machine_ticks() -> tuple[int, int]:
+def machine_ticks() -> tuple[int, int, int]:
+    """All, idle (with I/O wait) and stolen CPU ticks of the machine so far: a VM's stolen time is what the
+    host gave other guests while this one had work, a run's figures move with it."""
     values = [int(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
-    return sum(values), values[3] + values[4]
+    return sum(values), values[3] + values[4], values[7]
 
 
 def start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
@@ -403,11 +405,10 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool)
         node_cmd += ["-p", param]
     node = None if case.bare else start(node_cmd, env, workdir / f"{label}.node.log")
     monitor = publisher = None
-    samples: list[tuple[float, float | None, int, int]] = []
+    samples: list[tuple[float, float | None, int, int, int]] = []
 
     def sample() -> None:
-        total, idle = machine_ticks()
-        samples.append((time.time(), proc_cpu_s(node.pid) if node else None, total, idle))
+        samples.append((time.time(), proc_cpu_s(node.pid) if node else None, *machine_ticks()))
 
     publish_cmd = [*me, "publish", "--width", str(case.width), "--height", str(case.height)]
     publish_cmd += ["--rate", str(case.rate_hz), "--frames", str(args.frames), "--order", case.order]
@@ -443,7 +444,8 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool)
 
 
 TIMELINE_STEPS = (
-    "monitor's left image -> node's last input in DDS",
+    "monitor's left image -> node's first input in DDS",
+    "node's first input -> its last input in DDS",
     "last input: DDS -> its callback",
     "its callback (and any still running)",
     "callbacks -> worker",
@@ -470,6 +472,7 @@ def timeline_breakdown(
         last = max(inputs, key=lambda i: event[f"dds {i}"])
         times = (
             left[stamp],
+            min(event[f"dds {i}"] for i in inputs),
             event[f"dds {last}"],
             event[f"callback {last}"],
             max(event[f"callback end {i}"] for i in inputs),
@@ -505,6 +508,7 @@ def summarize(
     row["node_cpu_pct"] = 100.0 * node_cpu_s / active if active > 0 else float("nan")
     row["node_cpu_ms_per_frame"] = 1000.0 * node_cpu_s / max(1, row["disparity"]["received"])
     row["machine_busy_cores"] = (1.0 - (s1[3] - s0[3]) / max(1, s1[2] - s0[2])) * (os.cpu_count() or 1)
+    row["machine_steal_pct"] = 100.0 * (s1[4] - s0[4]) / max(1, s1[2] - s0[2])
     diagnostics = monitor["diagnostics"]
     row["node_dropped_diag"] = diagnostics.get("dropped frames", "-")
     row["node_stage_ms"] = {
@@ -548,7 +552,7 @@ def latency_text(output: dict[str, Any] | None) -> str:
 def print_header() -> None:
     print(
         f"{'case':26s}{'profile':>8s}{'disp Hz':>8s}{'pts Hz':>8s}{'dropped':>9s}{'diag':>6s}"
-        f"{'disp lat ms':>17s}{'pts lat ms':>17s}{'node CPU':>9s}{'ms/frame':>9s}{'machine':>8s}"
+        f"{'disp lat ms':>17s}{'pts lat ms':>17s}{'node CPU':>9s}{'ms/frame':>9s}{'machine':>8s}{'stolen':>7s}"
     )
 
 
@@ -561,7 +565,7 @@ def print_row(r: dict[str, Any]) -> None:
     print(
         f"{r['case']:26s}{r['profile']:>8s}{d['hz']:8.1f}{points_hz:>8s}{dropped:>9s}{r['node_dropped_diag']!s:>6s}"
         f"{latency_text(d):>17s}{latency_text(p):>17s}{r['node_cpu_pct']:8.0f}%{r['node_cpu_ms_per_frame']:9.1f}"
-        f"{r['machine_busy_cores']:8.2f}",
+        f"{r['machine_busy_cores']:8.2f}{r['machine_steal_pct']:6.0f}%",
         flush=True,
     )
 
@@ -712,6 +716,7 @@ def main() -> None:
         for row in rows:
             print_row(row)
     print("diag: the node's own 'dropped frames', warm-up frames included (a few wait for start-up work)")
+    print("machine: busy cores over the run; stolen: CPU time the VM's host gave to other guests meanwhile")
     print("\nthe node's own per-stage times (its diagnostics: mean of the last 30 frames), ms")
     for r in rows:
         print(f"{r['case']:26s}{r['profile']:>6s}  " + "  ".join(f"{k} {v:.1f}" for k, v in r["node_stage_ms"].items()))
