@@ -139,8 +139,8 @@ class AdaptiveSubscription:
     `recheck()` from a timer, and within QOS_RECHECK_S when `publishers_changed()` (a publisher came or
     went). That is polled, not evented: each event handler costs every wake of rclpy's executor (see
     `SubscriberWatch`), and a count of the topic's publishers catches the matched and the incompatible ones
-    alike. `recheck()` also warns, once, about each publisher of another type, which never matches. The
-    subscription carries one handler, for lost messages (counted).
+    alike. `recheck()` also warns, once, about each publisher of another type, which never matches and
+    has no say in the reliability. The subscription carries one handler, for lost messages (counted).
     The policies the user overrode (`qos_overrides.<topic>.subscription.*`) are applied to every
     recreation; a reliability override replaces the adaptive rule for this topic.
     """
