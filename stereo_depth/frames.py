@@ -102,7 +102,7 @@ def decode_image(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
 
     A sensor_msgs/CompressedImage (it has a format, no encoding: image_transport's `compressed`, JPEG or
     PNG) is decoded here, once per image, on whichever thread processes the frame (cv2.imdecode
-    releases the GIL, so a node's executor keeps receiving meanwhile)."""
+    releases the GIL, so a node keeps receiving meanwhile)."""
     if not hasattr(msg, "encoding"):
         return compressed_to_pipeline(msg, max_pixels)
     return image_to_pipeline(msg, max_pixels)

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -34,6 +35,7 @@ from rclpy.qos import (
     qos_policy_name_from_kind,
 )
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from stereo_depth.errors import ParameterError
@@ -155,8 +157,11 @@ class AdaptiveSubscription:
         policy: str,
         depth: int,
         on_lost: Callable[[int], None],
+        callback_group: CallbackGroup | None = None,  # input_thread.NotInExecutor: taken on the input thread
+        on_replaced: Callable[[], None] = lambda: None,  # after `recheck` recreated the subscription
     ) -> None:
         self._node = node
+        self._group, self._on_replaced = callback_group, on_replaced
         self._msg_type = msg_type
         self._type_name = type_name(msg_type)
         self._wrong_types: set[bytes] = set()  # GIDs of publishers of another type, warned about
@@ -180,7 +185,7 @@ class AdaptiveSubscription:
             return str(self._overridden[QoSPolicyKind.RELIABILITY])
         return policy
 
-    def _create(self, overridable: Iterable[QoSPolicyKind] = ()) -> Any:
+    def _create(self, overridable: Iterable[QoSPolicyKind] = ()) -> Subscription:
         events = SubscriptionEventCallbacks(message_lost=self._lost, use_default_callbacks=False)
         with override_errors():
             return self._node.create_subscription(
@@ -190,7 +195,12 @@ class AdaptiveSubscription:
                 input_qos(self.reliability, self._depth),
                 event_callbacks=events,
                 qos_overriding_options=QoSOverridingOptions([*overridable, *self._overridden]),
+                callback_group=self._group,
             )
+
+    @property
+    def subscription(self) -> Subscription:
+        return self._subscription
 
     def publishers_changed(self) -> bool:
         """Whether the topic's publisher count moved since the last look."""
@@ -220,6 +230,7 @@ class AdaptiveSubscription:
         self._node.destroy_subscription(self._subscription)
         self.reliability = wanted
         self._subscription = self._create()
+        self._on_replaced()
         self._node.get_logger().info(
             f"{self.topic}: subscribed {wanted.name.lower()} (publishers offer "
             f"{', '.join(sorted({r.name.lower() for r in offered})) or 'nothing yet'})"

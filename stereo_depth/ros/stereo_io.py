@@ -8,7 +8,8 @@ backlog growing; the waiting places absorb a busy machine's scheduling hiccups, 
 turns into lost frames even at a rate the node easily sustains. A node may process several sets at
 once (`frames_at_once`); its outputs still leave in input order. Diagnostics report each output's age
 at publish, from the receipt of the set's first input.
-OpenCV releases the GIL, so the executor keeps receiving while a frame is processed.
+The inputs are taken on a thread of their own (input_thread.py), not in rclpy's standard executor, which
+keeps the timers and services; OpenCV releases the GIL, so inputs keep arriving while a frame is processed.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from stereo_depth.messages import camera_info_to_msg, make_header, same_calibrat
 from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros import signals
 from stereo_depth.ros.diagnostics import NodeDiagnostics
+from stereo_depth.ros.input_thread import InputThread, NotInExecutor
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.problems import ProblemLog, error_key
@@ -109,6 +111,7 @@ class StereoIONode(Node):
         self._outputs: list[Publisher] = []
         self._watches: list[SubscriberWatch] = []  # one per output: its incompatible-QoS warnings
         self._inputs: list[AdaptiveSubscription] = []
+        self._input_thread: InputThread | None = None  # None: the executor takes the inputs (executor:=events)
         self._io_timers: list[Timer] = []
         self._worker: LatestWorker | None = None
         self._sync_lock = threading.Lock()
@@ -155,6 +158,8 @@ class StereoIONode(Node):
         self._new_diagnostics()
         self.start_workers()
         inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
+        threaded = settings.options.executor != "events"
+        group = NotInExecutor() if threaded else None
         self._inputs = [
             AdaptiveSubscription(
                 self,
@@ -164,10 +169,14 @@ class StereoIONode(Node):
                 policy=settings.options.reliability,
                 depth=settings.options.queue_size,
                 on_lost=partial(self.diagnostics.input_lost, self.topics[index]),
+                callback_group=group,
+                on_replaced=self._inputs_replaced,
             )
             for index, (topic, msg_type) in enumerate(inputs)
             if index not in self._info_files
         ]
+        if threaded:
+            self._input_thread = InputThread(self, lambda: [i.subscription for i in self._inputs], self._input_error)
         self._io_timers = [
             self.create_timer(1.0, self._publish_diagnostics),
             self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False)),
@@ -179,6 +188,9 @@ class StereoIONode(Node):
 
     def deactivate_io(self) -> None:
         """Unsubscribe, let the running frame finish, end the workers; half-paired sets are dropped."""
+        if self._input_thread is not None:
+            self._input_thread.stop()
+            self._input_thread = None
         for subscription in self._inputs:
             subscription.destroy()
         for timer in self._io_timers:
@@ -375,6 +387,15 @@ class StereoIONode(Node):
         if executor == "events":
             return lambda msg: self._on_message(index, msg, None)
         return partial(self._on_message, index)
+
+    def _inputs_replaced(self) -> None:
+        if self._input_thread is not None:
+            self._input_thread.changed()
+
+    def _input_error(self, exc: Exception) -> None:
+        """An input callback's exception, on the input thread: a bug, reported as such; inputs go on."""
+        self.diagnostics.error(f"internal error: {exc!r}")
+        self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
 
     def _on_message(self, index: int, msg: Any, sample: dict[str, int] | None) -> None:
         """A message of input `index`, with its DDS sample info (None for a calibration file's)."""
