@@ -6,7 +6,7 @@ millisecond, but the last of them reached its callback 1.2-2 ms later (bench/e2e
 thread keeps a wait set of the inputs alone (their subscriptions and their lost-message events) and takes
 every message that is ready at each wake, so the set goes to the worker as soon as its last input is in.
 
-The subscriptions and their events are created in `NOT_IN_EXECUTOR`, a callback group that rclpy's executor
+The subscriptions and their events are created in `NotInExecutor`, a callback group that rclpy's executor
 never runs, so it leaves them out of its wait set: Fast DDS wakes one wait set per subscription (its listener
 holds one condition), and with both waiting on it this thread missed wake-ups and lost messages. The executor
 keeps the timers, the parameter services and everything else. rclpy's EventsExecutor (`executor:=events`)
@@ -54,6 +54,9 @@ class InputThread:
     ) -> None:
         self._node, self._subscriptions, self._report = node, subscriptions, report
         self._wake = GuardCondition(None, None, context=node.context)
+        # the subscriptions last read, their lost-message events and the wait set sized for them (rebuilt
+        # only when `subscriptions()` returns others; refilled at each wake, as rcl's wait empties it)
+        self._entities: tuple[tuple[Subscription, ...], list[EventHandler], Any] | None = None
         self._running = True
         self._thread = threading.Thread(target=self._run, name="inputs", daemon=True)
         self._thread.start()
@@ -66,6 +69,7 @@ class InputThread:
         self._running = False
         self._wake.trigger()
         self._thread.join()
+        self._entities = None  # the wait set too, before the guard condition it holds
         self._wake.destroy()
 
     def _run(self) -> None:
@@ -79,20 +83,26 @@ class InputThread:
                 if self._running and context.ok():
                     self._report(exc)
 
+    def _current(self, context: Any) -> tuple[tuple[Subscription, ...], list[EventHandler], Any]:
+        subscriptions = tuple(self._subscriptions())
+        if self._entities is None or self._entities[0] != subscriptions:
+            events = [
+                handler
+                for subscription in subscriptions
+                for handler in cast("list[EventHandler]", subscription.event_handlers)  # rclpy annotates one
+            ]
+            wait_set = _rclpy.WaitSet(len(subscriptions), 1, 0, 0, 0, len(events), context.handle)
+            self._entities = (subscriptions, events, wait_set)
+        return self._entities
+
     def _wait_and_take(self, context: Any) -> None:
-        subscriptions = self._subscriptions()
-        events = [
-            handler
-            for subscription in subscriptions
-            for handler in cast("list[EventHandler]", subscription.event_handlers)  # rclpy annotates it as one
-        ]
+        subscriptions, events, wait_set = self._current(context)
         with ExitStack() as in_use:  # none of them is destroyed while waited on
             for subscription in subscriptions:
                 in_use.enter_context(subscription.handle)
             for handler in events:
                 in_use.enter_context(handler)
             in_use.enter_context(self._wake.handle)
-            wait_set = _rclpy.WaitSet(len(subscriptions), 1, 0, 0, 0, len(events), context.handle)
             wait_set.clear_entities()
             for subscription in subscriptions:
                 wait_set.add_subscription(subscription.handle)

@@ -138,10 +138,10 @@ class AdaptiveSubscription:
 
     Created at start-up (so `ros2 node info` lists it) as reliable, the common default for publishers;
     `recheck()` recreates it when the publishers' offer calls for the other reliability. The node calls
-    `recheck()` from a timer, and within QOS_RECHECK_S when `publishers_changed()` (a publisher came or
-    went). That is polled, not evented: each event handler costs every wake of rclpy's executor (see
-    `SubscriberWatch`), and a count of the topic's publishers catches the matched and the incompatible ones
-    alike. `recheck()` also warns, once, about each publisher of another type, which never matches and
+    `check()` from a timer, as `SubscriberWatch`'s, which rechecks when the topic's publisher count moved
+    (a publisher came or went) or `everything`. That is polled, not evented: each event handler costs
+    every wake of rclpy's executor, and a count of the topic's publishers catches the matched and the
+    incompatible ones alike. `recheck()` also warns, once, about each publisher of another type, which never matches and
     has no say in the reliability. The subscription carries one handler, for lost messages (counted).
     The policies the user overrode (`qos_overrides.<topic>.subscription.*`) are applied to every
     recreation; a reliability override replaces the adaptive rule for this topic.
@@ -202,11 +202,12 @@ class AdaptiveSubscription:
     def subscription(self) -> Subscription:
         return self._subscription
 
-    def publishers_changed(self) -> bool:
-        """Whether the topic's publisher count moved since the last look."""
+    def check(self, *, everything: bool = False) -> None:
+        """`recheck` when the topic's publisher count moved since the last look, or `everything`."""
         count = self._node.count_publishers(self.topic)
         changed, self._publishers = count != self._publishers, count
-        return changed
+        if changed or everything:
+            self.recheck()
 
     def _lost(self, info: QoSMessageLostInfo) -> None:
         self._on_lost(int(info.total_count_change))

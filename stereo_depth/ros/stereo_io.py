@@ -176,7 +176,7 @@ class StereoIONode(Node):
             if index not in self._info_files
         ]
         if threaded:
-            self._input_thread = InputThread(self, lambda: [i.subscription for i in self._inputs], self._input_error)
+            self._input_thread = InputThread(self, lambda: [i.subscription for i in self._inputs], self.report_bug)
         self._io_timers = [
             self.create_timer(1.0, self._publish_diagnostics),
             self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False)),
@@ -364,10 +364,14 @@ class StereoIONode(Node):
         except StereoDepthError as exc:
             self.problems.skipped(str(exc), error_key(exc))
         except Exception as exc:
-            if not self.context.ok():
-                return  # shutting down: publishers are gone
-            self.diagnostics.error(f"internal error: {exc!r}")
-            self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
+            if self.context.ok():  # else shutting down: publishers are gone
+                self.report_bug(exc)
+
+    def report_bug(self, exc: Exception) -> None:
+        """An exception no input explains (a worker's, or an input callback's on the input thread): diagnostics
+        and a throttled log line; the node keeps serving."""
+        self.diagnostics.error(f"internal error: {exc!r}")
+        self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------ internals
 
@@ -391,11 +395,6 @@ class StereoIONode(Node):
     def _inputs_replaced(self) -> None:
         if self._input_thread is not None:
             self._input_thread.changed()
-
-    def _input_error(self, exc: Exception) -> None:
-        """An input callback's exception, on the input thread: a bug, reported as such; inputs go on."""
-        self.diagnostics.error(f"internal error: {exc!r}")
-        self.get_logger().error(f"internal error, please report: {exc!r}", throttle_duration_sec=5.0)
 
     def _on_message(self, index: int, msg: Any, sample: dict[str, int] | None) -> None:
         """A message of input `index`, with its DDS sample info (None for a calibration file's)."""
@@ -480,11 +479,9 @@ class StereoIONode(Node):
     def _recheck_qos(self, everything: bool) -> None:
         """Each input's reliability and publishers' types, each output's subscribers' QoS: looked at when
         their count moved, or `everything`."""
-        for subscription in self._inputs:
-            if subscription.publishers_changed() or everything:
-                subscription.recheck()
-        for watch in self._watches:
-            watch.check(everything=everything)
+        endpoints: list[AdaptiveSubscription | SubscriberWatch] = [*self._inputs, *self._watches]
+        for endpoint in endpoints:
+            endpoint.check(everything=everything)
 
     def _run_frame(self, job: tuple[int, int, float, tuple[Any, ...]]) -> None:
         self._frame.sequence, stamp_ns, self._frame.received_s, messages = job
