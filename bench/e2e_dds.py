@@ -32,7 +32,8 @@ stereo_depth/ros/transport.py).
     .venv/bin/python bench/e2e_dds.py                 # every case once, profile exported
     .venv/bin/python bench/e2e_dds.py --pairing       # publish orders, skew, bursts, bare rclpy; none and all
     .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
-    .venv/bin/python bench/e2e_dds.py --timeline --cases bm_vga_30_disparity_only   # where the latency goes
+    .venv/bin/python bench/e2e_dds.py --timeline --cases bm_vga_30_disparity_only   # where the latency goes,
+        # and the share of frames DDS repaired an input of on its way to the node or to the monitor
     .venv/bin/python bench/e2e_dds.py --anchor --repeats 3 --profiles none all \
         --cases bm_vga_30 bm_vga_30_disparity_only     # the C++ chain interleaved with ours
 """
@@ -456,6 +457,18 @@ TIMELINE_STEPS = (
 )
 
 
+# A frame whose inputs reach the node more than this far apart had one repaired by DDS: a publisher on Fast DDS
+# defaults (512 KB segment) overwrites an image some reader has not taken and resends it after its writer's
+# 5 ms nack response delay (README, "Inputs and outputs over DDS"); the monitor's left image likewise.
+REPAIRED_MS = 3.0
+REPAIRED_STEPS = (
+    "node's inputs: frames with one repaired (%)",
+    "monitor's left image: frames repaired (%)",
+    "  disparity, frames the node got repaired",
+    "  disparity, the other frames",
+)
+
+
 def timeline_breakdown(
     events: dict[str, dict[str, int]], records: dict[str, list[tuple[int, int]]]
 ) -> dict[str, float]:
@@ -484,7 +497,18 @@ def timeline_breakdown(
         for step, (start, end) in zip(TIMELINE_STEPS[:-1], itertools.pairwise(times), strict=True):
             steps[step].append((end - start) / 1e6)
         steps[TIMELINE_STEPS[-1]].append((disparity[stamp] - left[stamp]) / 1e6)
-    return {step: statistics.median(values) for step, values in steps.items() if values}
+    out = {step: statistics.median(values) for step, values in steps.items() if values}
+    spread, monitor_late = steps[TIMELINE_STEPS[1]], steps[TIMELINE_STEPS[0]]
+    totals = steps[TIMELINE_STEPS[-1]]
+    repaired = [total for gap, total in zip(spread, totals, strict=True) if gap > REPAIRED_MS]
+    whole = [total for gap, total in zip(spread, totals, strict=True) if gap <= REPAIRED_MS]
+    if totals:
+        out[REPAIRED_STEPS[0]] = 100.0 * len(repaired) / len(totals)
+        out[REPAIRED_STEPS[1]] = 100.0 * sum(late < -REPAIRED_MS for late in monitor_late) / len(totals)
+    if repaired and whole:
+        out[REPAIRED_STEPS[2]] = statistics.median(repaired)
+        out[REPAIRED_STEPS[3]] = statistics.median(whole)
+    return out
 
 
 def summarize(
@@ -733,8 +757,8 @@ def main() -> None:
         print("\nwhere the disparity's latency goes (bench/timeline_node.py; medians over the frames, ms)")
         for r in rows:
             print(f"{r['case']:26s}{r['profile']:>6s}")
-            for step, ms in r.get("timeline_ms", {}).items():
-                print(f"  {step:48s}{ms:7.2f}")
+            for step, value in r.get("timeline_ms", {}).items():
+                print(f"  {step:48s}{value:7.{0 if step.endswith('(%)') else 2}f}")
     if args.anchor is not None:
         print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
     elif args.anchor_summary.exists():
