@@ -461,6 +461,7 @@ TIMELINE_STEPS = (
 # defaults (512 KB segment) overwrites an image some reader has not taken and resends it after its writer's
 # 5 ms nack response delay (README, "Inputs and outputs over DDS"); the monitor's left image likewise.
 REPAIRED_MS = 3.0
+MIN_FRAMES_PER_GROUP = 10
 REPAIRED_STEPS = (
     "node's inputs: frames with one repaired (%)",
     "monitor's left image: frames repaired (%)",
@@ -505,7 +506,7 @@ def timeline_breakdown(
     if totals:
         out[REPAIRED_STEPS[0]] = 100.0 * len(repaired) / len(totals)
         out[REPAIRED_STEPS[1]] = 100.0 * sum(late < -REPAIRED_MS for late in monitor_late) / len(totals)
-    if repaired and whole:
+    if min(len(repaired), len(whole)) >= MIN_FRAMES_PER_GROUP:  # a median of a few frames says little
         out[REPAIRED_STEPS[2]] = statistics.median(repaired)
         out[REPAIRED_STEPS[3]] = statistics.median(whole)
     return out
