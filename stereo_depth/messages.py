@@ -450,8 +450,12 @@ def disparity_to_msg(
         msg, image = message(data), np.frombuffer(data, np.float32).reshape(height, width)
     else:  # the serialized message (rclpy)
         msg, image = serialized[0], serialized[1].view(np.float32).reshape(height, width)
-    np.subtract(disparity, offset, out=image, dtype=np.float32)  # computed straight into the message
-    np.fmax(image, np.float32(min_d - 1.0), out=image)
+    invalid = np.float32(min_d - 1.0)
+    if offset:  # computed straight into the message
+        np.subtract(disparity, offset, out=image, dtype=np.float32)
+        np.fmax(image, invalid, out=image)
+    else:  # the usual calibration (cx_l = cx_r): one pass over the frame, not two
+        np.fmax(disparity, invalid, out=image, dtype=np.float32)
     return msg
 
 

@@ -6,6 +6,8 @@ those a Jazzy publisher puts on the wire.
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -147,6 +149,24 @@ def test_disparity_message_is_offset_adjusted_like_stereo_image_proc(camera: Ste
     assert back[1, 1] == pytest.approx(16.0 - offset)  # a valid point at the minimum disparity is kept
     # Z = f * t / d' with no further offset gives the calibrated depth
     assert msg.f * msg.t / back[0, 0] == pytest.approx(0.160 * 935.0 / (20.0 + 50.0))  # type: ignore[attr-defined]
+
+
+def test_disparity_message_of_a_camera_without_offset_holds_the_disparity_itself(camera: StereoCamera) -> None:
+    """cx_l = cx_r, as most drivers' rectified calibrations have it (its pixels take one pass, not two):
+    valid pixels are the disparity, invalid ones (NaN) min_disparity - 1, as with an offset."""
+    left, right = load_scene(SCENES / "artl").camera_infos()
+    p = right.p.copy()
+    p[0, 2] = left.p[0, 2]
+    aligned = StereoCamera(left, dataclasses.replace(right, p=p))
+    assert aligned.disparity_offset == 0.0 and camera.disparity_offset != 0.0
+    disparity = np.array([[20.0, np.nan], [30.5, 16.0]], np.float32)
+    for stereo in (aligned, camera):
+        msg = wire(disparity_to_msg(T, HEADER, disparity, stereo, 16, 64, (0, 0, 2, 2)))
+        offset = np.float32(stereo.disparity_offset)
+        image = image_to_array(msg.image)  # type: ignore[attr-defined]
+        assert msg.min_disparity == 16 - offset  # type: ignore[attr-defined]
+        expected = np.where(np.isnan(disparity), np.float32(16 - offset - 1), disparity - offset)
+        np.testing.assert_array_equal(image, expected)
 
 
 def test_disparity_in_a_reused_buffer_is_the_disparity_in_a_fresh_one(camera: StereoCamera) -> None:
