@@ -33,3 +33,7 @@ class ParameterError(StereoDepthError):
 
 class BagError(StereoDepthError):
     """A rosbag2 file cannot be read or written as asked."""
+
+
+class MessageError(StereoDepthError):
+    """An input's bytes are not a message of its topic's type (cut short, or another layout)."""

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
@@ -360,6 +361,19 @@ def test_buffer_shorter_than_step_times_height(node: FaultyNode) -> None:
         m[RIGHT_IMAGE].data = bytes(m[RIGHT_IMAGE].data)[:-7]
 
     node.refuses(bad(node.scene, truncate), f"{NS}/right/image_raw", "bytes but step x height")
+
+
+def test_message_bytes_cut_short_are_skipped_naming_the_topic(node: FaultyNode) -> None:
+    """A sender that publishes serialized bytes (rclpy's publish(bytes), a bridge) and cuts an image short:
+    the node takes its inputs raw, says which topic sent what, and pairs the next good set."""
+
+    def cut(m: Messages) -> None:
+        raw = serialize_message(m[RIGHT_IMAGE])
+        m[RIGHT_IMAGE] = raw[: len(raw) // 2]
+
+    messages = bad(node.scene, cut)
+    parts = (f"{NS}/right/image_raw", f"{len(messages[RIGHT_IMAGE])} bytes that are not a sensor_msgs/msg/Image")
+    node.refuses(messages, *parts)
 
 
 def test_step_smaller_than_a_row(node: FaultyNode) -> None:

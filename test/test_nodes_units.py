@@ -25,17 +25,28 @@ from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from ros_helpers import wait_until
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.geometry import Rays
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.errors import ImageError, StereoDepthError
+from stereo_depth.errors import ImageError, MessageError, StereoDepthError
+from stereo_depth.formats.scenes import load_scene
 from stereo_depth.frames import InputNames, decode_frame, named
-from stereo_depth.messages import SerializedMessage, depth_to_cloud, make_header
+from stereo_depth.messages import (
+    SerializedMessage,
+    array_to_image,
+    camera_info_from_msg,
+    camera_info_to_msg,
+    depth_to_cloud,
+    image_to_pipeline,
+    make_header,
+    same_calibration,
+)
 from stereo_depth.options import NodeOptions, OutputOptions, Settings
 from stereo_depth.options_docs import render_config_yaml
 from stereo_depth.ros import problems, serialized_publish
@@ -43,10 +54,13 @@ from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
+from stereo_depth.ros.raw_inputs import raw_reader
 from stereo_depth.ros.stereo_io import GIL_SWITCH_S
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
 from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 from stereo_depth.sync import StereoSet, SyncCounters
+
+from conftest import SCENES
 
 CONFIG = Path(__file__).parents[1] / "config" / "stereo_depth.yaml"
 BAGS = Path(__file__).parents[1] / "bags"
@@ -436,3 +450,26 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
     assert received == [expected]
     executor.shutdown()
     node.destroy_node()
+
+
+def test_inputs_taken_as_their_bytes_read_as_rclpy_reads_them() -> None:
+    """The nodes take images and camera_infos raw (stereo_depth/ros/raw_inputs.py): what the reader makes of
+    rclpy's bytes decodes to the same pixels and calibration as rclpy's own message, with an rclpy header
+    (outputs carry it); bytes cut short are a MessageError that names the type, not a crash."""
+    scene = load_scene(SCENES / "artl")
+    header = make_header(RCLPY_TYPES, 1_700_000_000_123_456_789, "cam_left")
+    image = array_to_image(RCLPY_TYPES, header, scene.left)
+    info = camera_info_to_msg(RCLPY_TYPES, header, scene.camera_infos("cam_left")[0])
+    info.binning_x, info.roi.x_offset, info.roi.width = 2, 7, 100
+    read_image, read_info = raw_reader(Image), raw_reader(CameraInfo)
+    assert read_image is not None and read_info is not None and raw_reader(CompressedImage) is None
+    image_back, info_back = read_image(serialize_message(image)), read_info(serialize_message(info))
+    for back in (image_back, info_back):
+        assert isinstance(back.header, Header) and back.header == header
+    np.testing.assert_array_equal(image_to_pipeline(image_back), image_to_pipeline(image))
+    assert camera_info_from_msg(info_back) == camera_info_from_msg(info)
+    assert (info_back.binning_x, info_back.roi.x_offset, info_back.roi.width) == (2, 7, 100)
+    assert same_calibration(info_back, info)
+    raw = serialize_message(image)
+    with pytest.raises(MessageError, match=f"{len(raw) // 2} bytes that are not a sensor_msgs/msg/Image"):
+        read_image(raw[: len(raw) // 2])

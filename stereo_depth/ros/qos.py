@@ -159,8 +159,10 @@ class AdaptiveSubscription:
         on_lost: Callable[[int], None],
         callback_group: CallbackGroup | None = None,  # input_thread.NotInExecutor: taken on the input thread
         on_replaced: Callable[[], None] = lambda: None,  # after `recheck` recreated the subscription
+        raw: bool = False,  # the callback gets the message's CDR bytes
     ) -> None:
         self._node = node
+        self._raw = raw
         self._group, self._on_replaced = callback_group, on_replaced
         self._msg_type = msg_type
         self._type_name = type_name(msg_type)
@@ -196,6 +198,7 @@ class AdaptiveSubscription:
                 event_callbacks=events,
                 qos_overriding_options=QoSOverridingOptions([*overridable, *self._overridden]),
                 callback_group=self._group,
+                raw=self._raw,
             )
 
     @property

@@ -41,7 +41,7 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.core.temporal import compile_kernels
 from stereo_depth.core.threads import use_threads
-from stereo_depth.errors import CalibrationError, StereoDepthError
+from stereo_depth.errors import CalibrationError, MessageError, StereoDepthError
 from stereo_depth.formats.camera_info_yaml import read_camera_info_url
 from stereo_depth.frames import InputNames, StereoFrame, camera_fixes, decode_frame, decode_image, match_frame, named
 from stereo_depth.messages import camera_info_to_msg, make_header, same_calibration, stamp_to_ns
@@ -59,6 +59,7 @@ from stereo_depth.ros.qos import (
     override_errors,
     unused_overrides_line,
 )
+from stereo_depth.ros.raw_inputs import raw_reader
 from stereo_depth.ros.transport import use_large_message_profile
 from stereo_depth.ros.types import RCLPY_TYPES
 from stereo_depth.sync import StereoSet, Synchronizer
@@ -165,12 +166,13 @@ class StereoIONode(Node):
                 self,
                 msg_type,
                 topic,
-                self._input_callback(index, settings.options.executor),
+                self._input_callback(index, settings.options.executor, raw_reader(msg_type)),
                 policy=settings.options.reliability,
                 depth=settings.options.queue_size,
                 on_lost=partial(self.diagnostics.input_lost, self.topics[index]),
                 callback_group=group,
                 on_replaced=self._inputs_replaced,
+                raw=raw_reader(msg_type) is not None,
             )
             for index, (topic, msg_type) in enumerate(inputs)
             if index not in self._info_files
@@ -385,12 +387,24 @@ class StereoIONode(Node):
             same_calibration=same_calibration,
         )
 
-    def _input_callback(self, index: int, executor: str) -> Callable[..., None]:
+    def _input_callback(self, index: int, executor: str, read: Callable[[bytes], Any] | None) -> Callable[..., None]:
         """Input `index`'s subscription callback: rclpy's standard executor passes a two-argument one the DDS
-        sample info too; the EventsExecutor calls every callback with the message alone."""
+        sample info too; the EventsExecutor calls every callback with the message alone. With `read`, the
+        subscription is raw: `read` makes the message of its bytes (raw_inputs)."""
+        receive = partial(self._on_message, index) if read is None else partial(self._on_raw, index, read)
         if executor == "events":
-            return lambda msg: self._on_message(index, msg, None)
-        return partial(self._on_message, index)
+            return lambda msg: receive(msg, None)
+        return receive
+
+    def _on_raw(self, index: int, read: Callable[[bytes], Any], raw: bytes, sample: dict[str, int] | None) -> None:
+        """Input `index`'s message as its CDR bytes."""
+        try:
+            msg = read(raw)
+        except MessageError as exc:
+            topic = self.topics[index]
+            self.problems.skipped(f"{topic}: {exc}", ("unreadable", topic))
+            return
+        self._on_message(index, msg, sample)
 
     def _inputs_replaced(self) -> None:
         if self._input_thread is not None:
