@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import subprocess
@@ -77,3 +78,28 @@ def test_sourcing_the_workspace_exports_the_large_message_profile_unless_one_is_
     else:
         assert shown == [f"{name}={ours}" for name in VARIABLES]
         assert ours.is_file()
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    names = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    return names | {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+
+
+@pytest.mark.parametrize(
+    ("layer", "forbidden"),
+    [
+        ("ros", ("stereo_depth.bag",)),
+        ("core", ("rclpy", "rosbags", "yaml", "sensor_msgs", "stereo_msgs", "stereo_depth.ros", "stereo_depth.bag")),
+    ],
+)
+def test_layers_import_only_what_the_design_lets_them(layer: str, forbidden: tuple[str, ...]) -> None:
+    """DESIGN.md's layers: ros/ never imports bag/; core/ is numpy, OpenCV and numba, no ROS, rosbags or yaml."""
+    package = Path(__file__).parents[1] / "stereo_depth" / layer
+    found = {
+        f"{path.relative_to(package.parent)}: {name}"
+        for path in package.rglob("*.py")
+        for name in _imports(path)
+        if any(name == f or name.startswith(f"{f}.") for f in forbidden)
+    }
+    assert not found

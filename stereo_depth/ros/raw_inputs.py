@@ -21,10 +21,10 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from stereo_depth.bag.types import typestore
 from stereo_depth.errors import MessageError
 
 RAW_TYPES = {Image: "sensor_msgs/msg/Image", CameraInfo: "sensor_msgs/msg/CameraInfo"}
@@ -36,7 +36,7 @@ def raw_reader(msg_type: Any) -> Callable[[bytes], Any] | None:
     name = RAW_TYPES.get(msg_type)
     if name is None:
         return None
-    store = typestore()
+    store = get_typestore(Stores.ROS2_JAZZY)  # the messages of the rclpy this runs on (ros/ does not use bag/)
 
     def read(raw: bytes) -> Any:
         try:

@@ -161,18 +161,19 @@ class StereoIONode(Node):
         inputs = input_specs(self.INPUTS, self.IMAGE_INPUTS, settings.options)
         threaded = settings.options.executor != "events"
         group = NotInExecutor() if threaded else None
+        readers = [raw_reader(msg_type) for _, msg_type in inputs]  # None: taken as rclpy's message
         self._inputs = [
             AdaptiveSubscription(
                 self,
                 msg_type,
                 topic,
-                self._input_callback(index, settings.options.executor, raw_reader(msg_type)),
+                self._input_callback(index, settings.options.executor, readers[index]),
                 policy=settings.options.reliability,
                 depth=settings.options.queue_size,
                 on_lost=partial(self.diagnostics.input_lost, self.topics[index]),
                 callback_group=group,
                 on_replaced=self._inputs_replaced,
-                raw=raw_reader(msg_type) is not None,
+                raw=readers[index] is not None,
             )
             for index, (topic, msg_type) in enumerate(inputs)
             if index not in self._info_files
