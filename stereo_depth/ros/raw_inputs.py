@@ -5,9 +5,10 @@ field by field (every setter checks its value; d, k, r and p become numpy arrays
 is the critical path: a frame's set goes to the matcher only once its four messages are taken, and the
 frame after 30 ms of idle cores runs that code at a fraction of its warm speed. Taken raw (rclpy copies
 the bytes) and read by rosbags (a view of the image bytes, no copy), a camera_info took 0.013 ms of the
-thread's CPU in the node instead of 0.13 ms, an image 0.07-0.13 instead of 0.14-0.28 ms, and the worker
-started on the set 1.55 ms after its first input reached DDS instead of 1.82 ms (2-core Xeon, BM VGA
-30 Hz; bench/e2e_dds.py --timeline --cases bm_vga_30_16b, with each take timed, 2026-12-06).
+thread's CPU in the node instead of 0.13 ms, an image 0.07-0.13 instead of 0.14-0.28 ms (each take timed
+by hand); with the input thread's draining, the last input went from DDS to its callback in 0.57-0.60
+against 0.76-0.85 ms in runs taken in turn with the commit before (2-core Xeon, BM VGA 30 Hz;
+bench/e2e_dds.py --timeline --cases bm_vga_30_16b, 2026-12-06).
 
 The messages are rosbags' dataclasses, which the rest of the package reads as it reads a bag's, with
 their header replaced by an rclpy Header: the nodes' outputs carry their input's header in rclpy messages.
