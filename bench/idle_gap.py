@@ -6,16 +6,18 @@ VGA frames, in interleaved rounds (each starting one mode later than the one bef
 frame:
   * nothing (frame after frame);
   * an idle gap (sleep);
+  * the same gap, with the lower half's helper thread placed wherever the scheduler wakes it (as before
+    core/threads.py `OtherCore` kept it off its caller's core);
   * the same gap spent spinning, so the machine never idles;
   * the same gap after the previous frame's cloud stage, started on a second thread as the node starts
     it: depth, then points2 with 32-byte (the default) or 16-byte points written into its reused buffer
     and serialized as rclpy's publish() serializes it (the cloud stage ends within the gap).
-Prints the median ms per frame of each and its ratio to frame after frame. Where the clock follows the
-load (a utilization-driven frequency governor, on the host of a VM or on the machine itself) the gap
-rows slow down as the pattern goes on and the spinning row does not; without that effect all agree. If
-the cloud's ~10 MB of copies evicted what the next match needs, its rows would be slower than the idle
-gap's. The slowdown builds up over frames: 1.09x with 10 frames a round, 1.23x with 20, 1.95x with 60 on
-the README's 2-core Xeon VM (AVX-512).
+Prints the median ms per frame of each and its ratio to frame after frame, and the share of frames whose
+lower half started on the core its caller ran on as it handed the half over. On a VM whose guest kernel
+takes a halted vCPU for a busy one, a thread woken after an idle gap lands on its waker's core: the halves
+then share one core and take as long as the whole image on one thread; the helper's placement row shows
+what that costs. If the cloud's ~10 MB of copies evicted what the next match needs, its rows would be
+slower than the idle gap's.
 
     .venv/bin/python bench/idle_gap.py [--gap-ms 20] [--frames 60] [--rounds 3]
 """
@@ -26,9 +28,13 @@ import argparse
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
+from unittest import mock
 
+from stereo_depth.core import threads
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.frames import OutputState, StereoFrame, geometry_outputs, match_frame, result_geometry
@@ -41,7 +47,8 @@ from anchor_frames import FRAME_ID, camera_infos, frames
 from markdown_table import parse_bench_arguments, table_header, table_row, times
 
 CLOUD_MODES = {"idle gap after a 32-byte cloud": False, "idle gap after a 16-byte cloud": True}  # avoid_padding
-MODES = ("frame after frame", "idle gap", "gap spent spinning", *CLOUD_MODES)
+UNPLACED = "idle gap, helper where the scheduler wakes it"
+MODES = ("frame after frame", "idle gap", UNPLACED, "gap spent spinning", *CLOUD_MODES)
 
 
 def spin(seconds: float) -> None:
@@ -70,6 +77,28 @@ class CloudStage:
         points2.buffer.tobytes()  # built in its serialized bytes; publishing copies them once into DDS
 
 
+class HelperPlacement:
+    """Lets the lower half's helper be kept off its caller's core (the node's way) or placed by the scheduler
+    alone (`placed = False`), and records whether the helper started on the core its caller was on."""
+
+    def __init__(self) -> None:
+        self.placed = True
+        self.shared_a_core = False
+        keep_off, submit = threads.keep_off_current_core, threads.OtherCore.submit
+
+        def recorded(helper: threads.OtherCore, job: Callable[[], Any]) -> Future[Any]:
+            caller = threads.current_core()
+
+            def started() -> Any:
+                self.shared_a_core = threads.current_core() == caller
+                return job()
+
+            return submit(helper, started)
+
+        mock.patch.object(threads, "keep_off_current_core", lambda tid: self.placed and keep_off(tid)).start()
+        mock.patch.object(threads.OtherCore, "submit", recorded).start()
+
+
 def spend_gap(mode: str, seconds: float, clouds: CloudStage, previous: tuple[StereoFrame, StereoResult] | None) -> None:
     """The `seconds` before a frame as `mode` spends them; `previous`: the last frame and its match, if any."""
     if mode == "frame after frame":
@@ -93,14 +122,17 @@ def main() -> None:
     args = parse_bench_arguments(parser)
     gap_s = args.gap_ms / 1000.0
     pipeline = StereoPipeline(make_params("stereo_image_proc"))
+    helper = HelperPlacement()
     camera = pipeline.camera_for(*camera_infos(640, 480))
     header = make_header(RCLPY_TYPES, 0, FRAME_ID)
     clouds = CloudStage(pipeline)
     pairs = list(frames(640, 480, 20))
     ms: dict[str, list[float]] = {mode: [] for mode in MODES}
+    shared: dict[str, list[bool]] = {mode: [] for mode in MODES}
     for round_ in range(args.rounds):
         for mode in MODES[round_ % len(MODES) :] + MODES[: round_ % len(MODES)]:  # each round starts one later
             previous = None
+            helper.placed = mode != UNPLACED
             for i in range(args.frames):
                 spend_gap(mode, gap_s, clouds, previous)
                 left, right = pairs[i % len(pairs)]
@@ -108,14 +140,18 @@ def main() -> None:
                 start = time.perf_counter()
                 previous = frame, match_frame(pipeline, frame)
                 ms[mode].append((time.perf_counter() - start) * 1000.0)
+                shared[mode].append(helper.shared_a_core)
     baseline = statistics.median(ms[MODES[0]])
     print(f"BM 640x480, 64 disparities, window 15; gap {args.gap_ms:g} ms; {args.rounds} rounds x {args.frames} frames")
     if args.markdown:
-        print(table_header(("before each frame", "ms per frame (median)", "vs frame after frame")))
+        print(
+            table_header(("before each frame", "ms per frame (median)", "vs frame after frame", "halves on one core"))
+        )
     for mode in MODES:
         median = statistics.median(ms[mode])
-        cells = (mode, f"{median:.2f}", times(median / baseline))
-        print(table_row(cells) if args.markdown else f"{cells[0]:32s} {cells[1]:>6s} ms  {cells[2]}")
+        one_core = f"{100.0 * statistics.fmean(shared[mode]):.0f}%"
+        cells = (mode, f"{median:.2f}", times(median / baseline), one_core)
+        print(table_row(cells) if args.markdown else f"{cells[0]:46s} {cells[1]:>6s} ms  {cells[2]}  {cells[3]:>4s}")
 
 
 if __name__ == "__main__":

@@ -76,7 +76,7 @@ def test_a_frame_given_one_thread_is_matched_whole_on_that_thread(monkeypatch: p
     _, left, right = PAIRS[0]
     params = make_params("stereo_image_proc")
     whole = whole_image(params).compute(left, right)
-    monkeypatch.setattr(matching, "_lower_halves", lambda: pytest.fail("a helper thread was used"))
+    monkeypatch.setattr(matching, "other_core", lambda _: pytest.fail("a helper thread was used"))
     before = use_threads(0)
     try:
         assert use_threads(1) == 1

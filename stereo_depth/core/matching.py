@@ -7,9 +7,7 @@ between frames; a parameter change builds a new core, never mutates one in use.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -18,7 +16,7 @@ import numpy as np
 
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.speckles import SplitSpeckleFilter
-from stereo_depth.core.threads import opencv_threads
+from stereo_depth.core.threads import opencv_threads, other_core
 
 
 @dataclass
@@ -94,17 +92,12 @@ ONE_CORE_SGBM_MODES = (0, 1)  # SGBM and HH; SGBM_3WAY and HH4 spread one image 
 STRIP_OVERLAP = 48  # rows each half reaches into the other (semi-global paths need them to agree again)
 
 
-@functools.cache
-def _lower_halves() -> ThreadPoolExecutor:
-    """The threads that match lower halves, shared by every Halves matcher (one per frame matched at once)."""
-    return ThreadPoolExecutor(max_workers=4, thread_name_prefix="lower_half")
-
-
 class Halves:
     """An OpenCV matcher on two cores: the upper and the lower half of the image at once (the lower one
-    on a helper thread), each reaching `overlap` rows into the other, then its speckles removed and its
-    disparity converted on the same thread (core/speckles.py: the halves' speckle filters give what one
-    filter over the whole image gives, as OpenCV runs it inside `compute`).
+    on a helper thread kept off the caller's core, core/threads.py `OtherCore`), each reaching `overlap`
+    rows into the other, then its speckles removed and its disparity converted on the same thread
+    (core/speckles.py: the halves' speckle filters give what one filter over the whole image gives, as
+    OpenCV runs it inside `compute`).
 
     - SGBM and HH aggregate on the calling thread only. Semi-global paths restarted at a half's edge
       agree with the whole-image ones again within STRIP_OVERLAP rows.
@@ -148,7 +141,7 @@ class Halves:
             return MatchResult(disparity)
         start = (middle - self._overlap) & ~1
         with opencv_threads(1):  # one core per half: BM's own stripes would run two of them on one core
-            lower = _lower_halves().submit(
+            lower = other_core("lower_half").submit(
                 lambda: finish(middle, height, self._lower.compute(left[start:], right[start:])[middle - start :])
             )
             finish(0, middle, self._upper.compute(left[: 2 * middle - start], right[: 2 * middle - start])[:middle])
