@@ -188,6 +188,8 @@ def performance(run: Run) -> bool:
     ok = readme_e2e.anchor(run.work, run.args.quick)
     print("\nHow the matchers use two cores (`bench/parallel_matching.py`):\n")
     ok = run.bench("parallel_matching.py", quick=("--frames", "2")) and ok
+    print("\nOur BM kernels against OpenCV's StereoBM at three SIMD levels, interleaved (`bench/bm_kernels.py`):\n")
+    ok = run.bench("bm_kernels.py", quick=("--repeat", "2")) and ok
     print("\nPer frame, the node's own work against the bare OpenCV calls (`bench/pipeline_stages.py`):\n")
     ok = run.bench("pipeline_stages.py", quick=("--repeat", "2")) and ok
     print("\nThe census core against SGBM 3-way at three SIMD levels, interleaved (`bench/simd_match_ratio.py`):\n")

@@ -13,6 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
+from stereo_depth.core.camera import StereoCamera
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import load_scene
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from domain_lock import claim_domain_id  # the benches lock their domain ids alike
 
@@ -39,6 +43,20 @@ def euroc_sequence(folder: Path, frames: int) -> Path:
     for name in ("cam0_sensor.yaml", "cam1_sensor.yaml"):
         shutil.copy(EUROC / name, folder / name)
     return folder
+
+
+def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Rectified grey pairs to match: three Middlebury scenes and a EuRoC frame (rectified here)."""
+    pairs: list[tuple[str, np.ndarray, np.ndarray]] = []
+    for name in ("artl", "cones", "tsukuba"):
+        scene = load_scene(SCENES / name)
+        left_grey, right_grey = (cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) for i in (scene.left, scene.right))
+        pairs.append((name, left_grey, right_grey))
+    left = sorted((EUROC / "left").glob("*.png"))[0]
+    camera = StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", "cam"))
+    raw = [read_image(EUROC / side / left.name, cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]
+    pairs.append(("euroc", camera.rectify(raw[0], "left"), camera.rectify(raw[1], "right")))
+    return pairs
 
 
 CALIBRATION_RTOL = 1e-9  # two computations of one calibration (file formats, code paths): not bit for bit

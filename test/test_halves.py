@@ -5,35 +5,17 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
 from stereo_depth.core import matching
-from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import STRIP_OVERLAP, Halves, OpenCVMatcher, create_matcher, whole_image
 from stereo_depth.core.params import make_params
 from stereo_depth.core.threads import use_threads
-from stereo_depth.formats.euroc import stereo_camera_infos
-from stereo_depth.formats.scenes import load_scene
 
-from conftest import EUROC, SCENES, read_image
+from conftest import grey_pairs
 
-
-def grey_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
-    pairs: list[tuple[str, np.ndarray, np.ndarray]] = []
-    for name in ("artl", "cones", "tsukuba"):
-        scene = load_scene(SCENES / name)
-        left_grey, right_grey = (cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) for i in (scene.left, scene.right))
-        pairs.append((name, left_grey, right_grey))
-    left = sorted((EUROC / "left").glob("*.png"))[0]
-    camera = StereoCamera(*stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml", "cam"))
-    raw = [read_image(EUROC / side / left.name, cv2.IMREAD_GRAYSCALE) for side in ("left", "right")]
-    pairs.append(("euroc", camera.rectify(raw[0], "left"), camera.rectify(raw[1], "right")))
-    return pairs
-
-
-PAIRS = grey_pairs()
+PAIRS = grey_pairs()  # conftest.py
 
 
 @pytest.mark.parametrize("mode", [0, 1], ids=["SGBM", "HH"])
@@ -49,10 +31,13 @@ def test_halves_equal_opencv_on_the_whole_image(mode: int, name: str, left: np.n
 
 
 @pytest.mark.parametrize("rows", [0, 1], ids=["as_is", "one_row_less"])  # both parities of the image height
+@pytest.mark.parametrize("check", [0, 1], ids=["our_kernels", "opencv_left_right_check"])  # test_block_matching.py
 @pytest.mark.parametrize(("name", "left", "right"), PAIRS, ids=[p[0] for p in PAIRS])
-def test_bm_halves_equal_opencv_on_the_whole_image(rows: int, name: str, left: np.ndarray, right: np.ndarray) -> None:
+def test_bm_halves_equal_opencv_on_the_whole_image(
+    rows: int, check: int, name: str, left: np.ndarray, right: np.ndarray
+) -> None:
     left, right = left[: left.shape[0] - rows], right[: right.shape[0] - rows]
-    params = make_params("stereo_image_proc", {"disp12_max_diff": 1})  # BM, its speckle filter and LR check on
+    params = make_params("stereo_image_proc", {"disp12_max_diff": check})  # BM with its speckle filter
     matcher = create_matcher(params)
     assert isinstance(matcher, Halves) and params.speckle_size > 0
     whole = whole_image(params).compute(left, right)

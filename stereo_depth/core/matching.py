@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 
+from stereo_depth.core.block_matching import BlockMatcher, numba_bm_applies
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.speckles import SplitSpeckleFilter
 from stereo_depth.core.threads import opencv_threads, other_core
@@ -92,59 +93,86 @@ ONE_CORE_SGBM_MODES = (0, 1)  # SGBM and HH; SGBM_3WAY and HH4 spread one image 
 STRIP_OVERLAP = 48  # rows each half reaches into the other (semi-global paths need them to agree again)
 
 
-class Halves:
-    """An OpenCV matcher on two cores: the upper and the lower half of the image at once (the lower one
-    on a helper thread kept off the caller's core, core/threads.py `OtherCore`), each reaching `overlap`
-    rows into the other, then its speckles removed and its disparity converted on the same thread
-    (core/speckles.py: the halves' speckle filters give what one filter over the whole image gives, as
-    OpenCV runs it inside `compute`).
+class Bands(Protocol):
+    """A matcher that gives OpenCV's int16 disparity (1/16 px) of a band of rows of a pair, on any thread."""
 
-    - SGBM and HH aggregate on the calling thread only. Semi-global paths restarted at a half's edge
-      agree with the whole-image ones again within STRIP_OVERLAP rows.
-    - BM spreads an image over OpenCV's threads in stripes of at least ~200 rows, so a VGA frame is 3
-      stripes on 2 cores, one of them running two. Each half here runs on one OpenCV thread instead
-      (1.45x sooner than the whole image on two threads, anchor frames, 640x480, 64 disparities). The
-      halves need only the window's and the prefilter's reach. The lower half starts on an even row:
-      BM's last valid row depends on the parity of the image's height.
-    The joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
-    (test/test_halves.py). Images too low to split, and frames given one thread (core/threads.py: a
-    fleet worker's share, or a node matching two frames at once), are matched whole.
-    """
+    def prepare(self, left: np.ndarray, right: np.ndarray) -> Any:
+        """Once per frame, before its bands: what `band` reads."""
+        ...
+
+    def band(self, frame: Any, start: int, stop: int, half: int) -> np.ndarray:
+        """Rows [start, stop) of the pair's disparity; `half` (0 upper, 1 lower) picks the matcher object."""
+        ...
+
+
+class OpenCVBands:
+    """An OpenCV matcher on a band of rows, reaching `overlap` rows beyond it on either side (from an even
+    row: BM's last valid row depends on the parity of the image's height), one object per half (OpenCV's
+    matchers keep working buffers between calls)."""
 
     def __init__(
-        self,
-        params: StereoParams,
-        build: Callable[[StereoParams, int], cv2.StereoMatcher],
-        overlap: int,
-        speckle_range: int,
+        self, params: StereoParams, build: Callable[[StereoParams, int], cv2.StereoMatcher], overlap: int
     ) -> None:
-        self._upper, self._lower = build(params, 0), build(params, 0)  # speckles: SplitSpeckleFilter
-        self._overlap, self._speckle_range = overlap, speckle_range  # the range in OpenCV's unit for this matcher
+        self._matchers = (build(params, 0), build(params, 0))  # speckles: SplitSpeckleFilter
+        self._overlap = overlap
+
+    def prepare(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return left, right
+
+    def band(self, frame: tuple[np.ndarray, np.ndarray], start: int, stop: int, half: int) -> np.ndarray:
+        left, right = frame
+        height = left.shape[0]
+        first = (start - self._overlap) & ~1 if start > 0 else 0
+        last = min(height, 2 * stop - ((stop - self._overlap) & ~1)) if stop < height else height
+        matched: np.ndarray = self._matchers[half].compute(left[first:last], right[first:last])
+        return matched[start - first : stop - first]
+
+
+class Halves:
+    """A matcher on two cores: the upper and the lower half of the image at once (the lower one on a helper
+    thread kept off the caller's core, core/threads.py `OtherCore`), then each half's speckles removed and
+    its disparity converted on the same thread (core/speckles.py: the halves' speckle filters give what one
+    filter over the whole image gives, as OpenCV runs it inside `compute`).
+
+    - BM: our kernels (core/block_matching.py), which match a band of rows of the whole pair; where they do
+      not apply, OpenCV's on each half. OpenCV spreads an image over its threads in stripes of at least
+      ~200 rows, so a VGA frame is 3 stripes on 2 cores, one of them running two; each half runs on one
+      OpenCV thread instead (1.45x sooner than the whole image on two threads, anchor frames, 640x480,
+      64 disparities), reaching the window's and the prefilter's reach into the other.
+    - SGBM and HH aggregate on the calling thread only. Semi-global paths restarted at a half's edge
+      agree with the whole-image ones again within STRIP_OVERLAP rows.
+    The joined disparity equals OpenCV's whole-image result bit for bit on every scene tested
+    (test/test_halves.py). Images lower than `min_height`, and frames given one thread (core/threads.py:
+    a fleet worker's share, or a node matching two frames at once), are matched whole.
+    """
+
+    def __init__(self, bands: Bands, params: StereoParams, speckle_range: int, min_height: int) -> None:
+        self._bands = bands
+        self._speckle_range = speckle_range  # in the matcher's unit: 1/16 px for BM, px for SGBM
+        self._min_height = min_height
         self._params = params
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> MatchResult:
         p = self._params
         height = left.shape[0]
-        split = height >= 4 * self._overlap and cv2.getNumThreads() >= 2
+        split = height >= self._min_height and cv2.getNumThreads() >= 2
         middle = height // 2 if split else height
         raw = np.empty(left.shape[:2], np.int16)
         disparity = np.empty(left.shape[:2], np.float32)
         speckles = SplitSpeckleFilter(raw, middle, (p.min_disparity - 1) * 16, p.speckle_size, self._speckle_range)
+        frame = self._bands.prepare(left, right)
 
-        def finish(start: int, stop: int, matched: np.ndarray) -> None:
-            raw[start:stop] = matched
+        def finish(start: int, stop: int, half: int) -> None:
+            raw[start:stop] = self._bands.band(frame, start, stop, half)
             speckles.filter_rows(start, stop)
             fixed_point_to_float(raw[start:stop], p.min_disparity, disparity[start:stop])
 
         if not split:
-            finish(0, height, self._upper.compute(left, right))
+            finish(0, height, 0)
             return MatchResult(disparity)
-        start = (middle - self._overlap) & ~1
         with opencv_threads(1):  # one core per half: BM's own stripes would run two of them on one core
-            lower = other_core("lower_half").submit(
-                lambda: finish(middle, height, self._lower.compute(left[start:], right[start:])[middle - start :])
-            )
-            finish(0, middle, self._upper.compute(left[: 2 * middle - start], right[: 2 * middle - start])[:middle])
+            lower = other_core("lower_half").submit(lambda: finish(middle, height, 1))
+            finish(0, middle, 0)
             lower.result()
         changed = speckles.join()
         if changed is not None:
@@ -159,15 +187,20 @@ def whole_image(params: StereoParams) -> OpenCVMatcher:
     return OpenCVMatcher(build(params, params.speckle_size), params.min_disparity)
 
 
-def create_bm(params: StereoParams) -> Matcher:
-    """StereoBM takes its speckle range in 1/16 px (StereoSGBM in pixels): as stereo_image_proc passes it."""
+def create_bm(params: StereoParams, *, our_kernels: bool = True) -> Matcher:
+    """Our BM kernels where they apply (`our_kernels`: False takes OpenCV's on the halves, as benches compare),
+    else OpenCV's. StereoBM takes its speckle range in 1/16 px (StereoSGBM in pixels), as stereo_image_proc
+    passes it."""
     reach = params.correlation_window_size // 2 + params.prefilter_size // 2 + 1
-    return Halves(params, opencv_bm, reach, params.speckle_range)
+    ours = our_kernels and numba_bm_applies(params)
+    bands = BlockMatcher(params) if ours else OpenCVBands(params, opencv_bm, reach)
+    return Halves(bands, params, params.speckle_range, 4 * reach)
 
 
 def create_sgbm(params: StereoParams) -> Matcher:
     if params.sgbm_mode in ONE_CORE_SGBM_MODES:
-        return Halves(params, opencv_sgbm, STRIP_OVERLAP, 16 * params.speckle_range)
+        bands = OpenCVBands(params, opencv_sgbm, STRIP_OVERLAP)
+        return Halves(bands, params, 16 * params.speckle_range, 4 * STRIP_OVERLAP)
     return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
 
 

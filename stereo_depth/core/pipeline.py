@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from stereo_depth.core.block_matching import compile_kernels as compile_bm_kernels
+from stereo_depth.core.block_matching import numba_bm_applies
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
@@ -104,6 +106,13 @@ class StereoPipeline:
     def set_params(self, params: StereoParams) -> None:
         """Swap parameters in one assignment: a frame sees the old set or the new one."""
         self._params = params.validate()
+
+    def load_kernels(self) -> None:
+        """The numba kernels our BM runs for these parameters, compiled or loaded from numba's cache now (a
+        second or two) rather than on the first frame, which would wait for them."""
+        params = _scaled(self._params, self._params.downsample)
+        if params.matcher == "bm" and numba_bm_applies(params):
+            compile_bm_kernels((params.disparity_range,))
 
     def camera_for(self, left: CameraInfo, right: CameraInfo) -> StereoCamera:
         """The StereoCamera for this calibration; rebuilt (maps included) only when it changes."""

@@ -257,6 +257,8 @@ class StereoIONode(Node):
                 compile_kernels()  # the temporal filter's, now rather than on the first frame
             if settings.stereo is not None and settings.stereo.matcher == "census_sgm":
                 self._load_census_core()
+            if self.pipeline is not None:
+                self.pipeline.load_kernels()  # our BM's, for its disparity count
 
     def _load_census_core(self) -> None:
         """The census core's machine code now, before any input is subscribed, rather than on the first
