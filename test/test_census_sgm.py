@@ -23,11 +23,13 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core import temporal
-from stereo_depth.core.census_sgm import STEPS, census_sgm, compile_kernels, fill_holes
+from stereo_depth.core import block_matching, temporal
+from stereo_depth.core.census_sgm import STEPS, aggregation, census_sgm, compile_kernels, fill, fill_holes, postprocess
+from stereo_depth.core.census_sgm import census as transform
 from stereo_depth.core.matching import CensusSGMMatcher, create_matcher
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
+from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.formats.scenes import load_scene as read_scene
 
 from conftest import SCENES as SCENE_ROOT
@@ -354,3 +356,30 @@ def test_compile_command_builds_the_core_ahead_and_names_its_cache(tmp_path: Pat
     assert Path(run.stdout.strip().rsplit("numba cache: ", 1)[1]) == cache
     for kernel in missing:
         assert any(cache.glob(f"{kernel}.nbc")), f"{kernel}: its machine code must be cached"
+
+
+@pytest.mark.parametrize("profile", ["quality", "stereo_image_proc"])
+def test_a_read_only_frame_runs_the_kernels_compiled_ahead(profile: str) -> None:
+    """A node passes the image of its message's buffer (read-only) on when rectification is the identity
+    (pre-rectified cameras). numba compiles a variant of a kernel for read-only arrays, on that first frame
+    (the census core: a minute or two, while every frame is dropped), which `stereo-depth compile` does not
+    build: the kernels must get writable arrays."""
+    from numba import types  # loaded by the census core already
+
+    scene = read_scene(SCENE_ROOT / "cones")
+    left, right = (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) for image in (scene.left, scene.right))
+    for image in (left, right):
+        image.setflags(write=False)
+    pipeline = StereoPipeline(make_params(profile, {"fill_holes": True}))
+    assert np.isfinite(pipeline.match(left, right, None, rectified=True).disparity).mean() > 0.5
+    modules = [aggregation, transform, postprocess, fill, block_matching]
+    dispatchers = [obj for module in modules for obj in vars(module).values() if hasattr(obj, "signatures")]
+    dispatchers.append(block_matching._prefilter_kernel())
+    assert len(dispatchers) > 5
+    read_only = [
+        (dispatcher, signature)
+        for dispatcher in dispatchers
+        for signature in dispatcher.signatures
+        if any(isinstance(argument, types.Array) and not argument.mutable for argument in signature)
+    ]
+    assert read_only == []

@@ -50,6 +50,14 @@ def to_grey8(image: np.ndarray, scale: float) -> np.ndarray:
     return image
 
 
+def _writable(image: np.ndarray) -> np.ndarray:
+    """The image itself, or a copy where it is read-only (a view of a message's buffer, which the nodes pass
+    on when rectification is the identity): numba compiles a variant of every kernel for read-only arrays,
+    on the first frame (the census core: a minute or two, while frames are dropped), which
+    `stereo-depth compile` does not build."""
+    return image if image.flags.writeable else image.copy()
+
+
 def _grey_scale(left: np.ndarray, right: np.ndarray) -> float:
     """One 16-bit to 8-bit scale (common peak -> 255) for the pair's 16-bit images, so the pair stays
     photometrically consistent; an 8-bit partner (cameras of different kinds) is used as it is."""
@@ -167,7 +175,7 @@ class StereoPipeline:
             raise ImageError(msg)
         t1 = time.perf_counter()
         factor = params.downsample
-        grey_small, grey_r_small = _shrink(grey_l, grey_r, factor)
+        grey_small, grey_r_small = (_writable(image) for image in _shrink(grey_l, grey_r, factor))
         _check_matchable(grey_small, _scaled(params, factor))
         match = matcher.compute(grey_small, grey_r_small)
         t2 = time.perf_counter()
