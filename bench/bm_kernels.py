@@ -17,6 +17,7 @@ so its figures should not move with the level; ours use the level's full vector 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import statistics
 import sys
@@ -65,7 +66,7 @@ def child(disparity_range: int) -> None:
             ms["OpenCV, 1 thread"] = timed(lambda: opencv.compute(left, right))
             ms["ours, 1 thread"] = timed(lambda: ours.band(ours.prepare(left, right), 0, left.shape[0]))
         for name, matcher in halves.items():
-            ms[name] = timed(lambda matcher=matcher: matcher.compute(left, right))
+            ms[name] = timed(functools.partial(matcher.compute, left, right))
         return ms
 
     serve(frame, {"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()})
