@@ -16,22 +16,8 @@ from pathlib import Path
 
 import cv2
 
-# LLVM CPU names numba accepts -> the widest vector unit they imply, for NUMBA_CPU_NAME with no feature list
-_CPU_NAME_SIMD = {
-    "x86-64": "SSE2 (128-bit)",
-    "x86-64-v2": "SSE4.2 (128-bit)",
-    "x86-64-v3": "AVX2 (256-bit)",
-    "haswell": "AVX2 (256-bit)",
-    "broadwell": "AVX2 (256-bit)",
-    "skylake": "AVX2 (256-bit)",
-    "znver2": "AVX2 (256-bit)",
-    "znver3": "AVX2 (256-bit)",
-    "x86-64-v4": "AVX-512 (512-bit)",
-    "skylake-avx512": "AVX-512 (512-bit)",
-    "icelake-server": "AVX-512 (512-bit)",
-    "sapphirerapids": "AVX-512 (512-bit)",
-    "znver4": "AVX-512 (512-bit)",
-}
+from stereo_depth.core.simd import numba_target
+
 LIBRARIES = ("numpy", "opencv-python-headless", "numba", "llvmlite", "ros-jazzy-rclpy", "rosbags")
 
 
@@ -49,27 +35,10 @@ def cores() -> str:
 
 def numba_simd() -> str:
     """numba's target CPU and the widest vector unit its features allow (what its kernels compile for)."""
-    import llvmlite.binding as llvm
-    from numba.core import config
-
-    chosen_name: str | None = getattr(config, "CPU_NAME", None)  # set from the environment at import
-    chosen_features: str | None = getattr(config, "CPU_FEATURES", None)
-    name = chosen_name or llvm.get_host_cpu_name()
-    features = chosen_features if chosen_features is not None else llvm.get_host_cpu_features().flatten()
-    enabled = {f[1:] for f in features.split(",") if f.startswith("+")}
-    if not features:
-        level = _CPU_NAME_SIMD.get(name, "as the CPU name implies")
-    elif "avx512f" in enabled:
-        level = "AVX-512 (512-bit)"
-    elif "avx2" in enabled:
-        level = "AVX2 (256-bit)"
-    elif "sse4.2" in enabled:
-        level = "SSE4.2 (128-bit)"
-    else:
-        level = "128-bit or less"
-    source = "NUMBA_CPU_NAME" if chosen_name else "host"
-    feature_note = "host features" if chosen_features is None else f"features '{features}'"
-    return f"{level}; target '{name}' ({source}), {feature_note}"
+    target = numba_target()
+    source = "NUMBA_CPU_NAME" if target.name_chosen else "host"
+    feature_note = "host features" if not target.features_chosen else f"features '{target.features}'"
+    return f"{target.level}; target '{target.name}' ({source}), {feature_note}"
 
 
 def opencv_simd() -> str:

@@ -19,11 +19,12 @@ What OpenCV computes, and so what these do (StereoBM, 16-bit path):
     where a disparity other than the best and its neighbours has a sum <= best + best * ratio / 100;
   * the parabola through the best and its neighbours' sums gives 1/16 px, as OpenCV rounds it;
   * everything outside the valid region is invalid: (min_disparity - 1) * 16.
-Used where OpenCV takes its 16-bit path (prefilter_cap <= 31, window <= 21: the sums fit int16),
-without the left-right check (disp12_max_diff <= 0, stereo_image_proc's default) and with
-min_disparity <= 0 (above 0 OpenCV matches min_disparity columns past each row's end and writes them
-into the next row, where the last valid row's spill survives: its result there is not a function of
-the images alone); elsewhere the matcher is OpenCV's own (core/matching.py). numba compiles one kernel
+Used on CPUs with 256-bit vectors or wider (`use_our_bm`; at 128 bits OpenCV's is as fast), where
+OpenCV takes its 16-bit path (prefilter_cap <= 31, window <= 21: the sums fit int16), without the
+left-right check (disp12_max_diff <= 0, stereo_image_proc's default) and with min_disparity <= 0
+(above 0 OpenCV matches min_disparity columns past each row's end and writes them into the next row,
+where the last valid row's spill survives: its result there is not a function of the images alone);
+elsewhere the matcher is OpenCV's own (core/matching.py). numba compiles one kernel
 per disparity count on first use (seconds; cached afterwards, `stereo-depth compile` builds 64 and 128
 ahead).
 """
@@ -37,10 +38,12 @@ from typing import Any
 import numpy as np
 
 from stereo_depth.core.params import StereoParams
+from stereo_depth.core.simd import numba_target
 
 SHORT_SUMS_MAX_CAP = 31  # OpenCV's 16-bit path: prefilter_cap <= 31 and window <= 21 (62 * 21 * 21 < 2**15)
 SHORT_SUMS_MAX_WINDOW = 21
 INVALID_SCALE = 16  # OpenCV's fixed point: 1/16 px
+WIDE_VECTOR_BITS = 256  # AVX2 and wider
 
 
 def numba_bm_applies(params: StereoParams) -> bool:
@@ -51,6 +54,12 @@ def numba_bm_applies(params: StereoParams) -> bool:
         and params.disp12_max_diff <= 0
         and params.min_disparity <= 0
     )
+
+
+def use_our_bm(params: StereoParams) -> bool:
+    """Ours where they apply and the CPU's vectors are wide enough for them to win: at 128 bits (SSE4.2,
+    ARM's NEON) OpenCV's own StereoBM was as fast or faster (bench/bm_kernels.py: 0.96x-1.31x ours)."""
+    return numba_bm_applies(params) and numba_target().vector_bits >= WIDE_VECTOR_BITS
 
 
 def valid_region(width: int, height: int, params: StereoParams) -> tuple[int, int, int, int]:

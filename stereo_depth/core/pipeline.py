@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.block_matching import compile_kernels as compile_bm_kernels
-from stereo_depth.core.block_matching import numba_bm_applies
+from stereo_depth.core.block_matching import use_our_bm
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
@@ -119,7 +119,7 @@ class StereoPipeline:
         """The numba kernels our BM runs for these parameters, compiled or loaded from numba's cache now (a
         second or two) rather than on the first frame, which would wait for them."""
         params = _scaled(self._params, self._params.downsample)
-        if params.matcher == "bm" and numba_bm_applies(params):
+        if params.matcher == "bm" and use_our_bm(params):
             compile_bm_kernels((params.disparity_range,))
 
     def camera_for(self, left: CameraInfo, right: CameraInfo) -> StereoCamera:
