@@ -9,7 +9,8 @@ children in turn (bench/interleaved.py). Per frame and level, each way after a 5
   * stereo_node's match: both halves at once on two cores with their speckles removed (core/matching.py
     `Halves`), with OpenCV's matcher on each half (`OpenCVBands`) and with ours (`BlockMatcher`).
 Prints the median ms of each and ours / OpenCV's. OpenCV builds StereoBM for its baseline (SSE2 on x86),
-so its figures should not move with the level; ours use the level's full vector width.
+so its figures should not move with the level; ours use the level's full vector width (the node takes
+ours at 256 bits and wider only: core/block_matching.py `use_our_bm`).
 
     .venv/bin/python bench/bm_kernels.py [--repeat 15] [--levels native avx2 128] [--disparity-range 64] [--markdown]
 """
@@ -47,7 +48,10 @@ def child(disparity_range: int) -> None:
     params = make_params("stereo_image_proc", {"disparity_range": disparity_range})
     pairs = list(frames(640, 480, 20))
     opencv, ours = opencv_bm(params, 0), BlockMatcher(params)
-    halves = {"OpenCV, halves": create_bm(params, our_kernels=False), "ours, halves": create_bm(params)}
+    halves = {
+        "OpenCV, halves": create_bm(params, our_kernels=False),
+        "ours, halves": create_bm(params, our_kernels=True),
+    }
     assert isinstance(vars(halves["ours, halves"])["_bands"], BlockMatcher)
     count = [0]
 

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from stereo_depth.core.block_matching import BlockMatcher, use_our_bm
+from stereo_depth.core.block_matching import BlockMatcher, numba_bm_applies, use_our_bm
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.speckles import SplitSpeckleFilter
 from stereo_depth.core.threads import opencv_threads, other_core
@@ -187,12 +187,12 @@ def whole_image(params: StereoParams) -> OpenCVMatcher:
     return OpenCVMatcher(build(params, params.speckle_size), params.min_disparity)
 
 
-def create_bm(params: StereoParams, *, our_kernels: bool = True) -> Matcher:
-    """Our BM kernels where they apply and win (core/block_matching.py `use_our_bm`; `our_kernels`: False takes
-    OpenCV's on the halves, as benches compare), else OpenCV's. StereoBM takes its speckle range in 1/16 px
-    (StereoSGBM in pixels), as stereo_image_proc passes it."""
+def create_bm(params: StereoParams, *, our_kernels: bool | None = None) -> Matcher:
+    """Our BM kernels where they apply and win (core/block_matching.py `use_our_bm`), else OpenCV's; benches
+    compare the two with `our_kernels` True (ours wherever they apply) or False (OpenCV's). StereoBM takes
+    its speckle range in 1/16 px (StereoSGBM in pixels), as stereo_image_proc passes it."""
     reach = params.correlation_window_size // 2 + params.prefilter_size // 2 + 1
-    ours = our_kernels and use_our_bm(params)
+    ours = use_our_bm(params) if our_kernels is None else our_kernels and numba_bm_applies(params)
     bands = BlockMatcher(params) if ours else OpenCVBands(params, opencv_bm, reach)
     return Halves(bands, params, params.speckle_range, 4 * reach)
 
