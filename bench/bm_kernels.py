@@ -17,9 +17,7 @@ ours at 256 bits and wider only: core/block_matching.py `use_our_bm`).
 
 from __future__ import annotations
 
-import argparse
 import functools
-import os
 import statistics
 import sys
 import time
@@ -28,9 +26,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 from anchor_frames import frames
-from interleaved import IDLE_S, frames_in_turn, serve, start
-from markdown_table import parse_bench_arguments, table_header, table_row, times
-from readme_figures import SIMD_ENV, simd_env
+from interleaved import IDLE_S
+from markdown_table import table_header, table_row, times
+from simd_levels import LEVEL_COLUMNS, level_cells, run_levels, serve_level
 
 WAYS = ("OpenCV, 1 thread", "ours, 1 thread", "OpenCV, halves", "ours, halves")
 
@@ -43,7 +41,6 @@ def child(disparity_range: int) -> None:
     from stereo_depth.core.matching import create_bm, opencv_bm
     from stereo_depth.core.params import make_params
     from stereo_depth.core.threads import opencv_threads
-    from stereo_depth.machine import cpu_model, numba_simd, opencv_simd
 
     params = make_params("stereo_image_proc", {"disparity_range": disparity_range})
     pairs = list(frames(640, 480, 20))
@@ -73,33 +70,19 @@ def child(disparity_range: int) -> None:
             ms[name] = timed(functools.partial(matcher.compute, left, right))
         return ms
 
-    serve(frame, {"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()})
+    serve_level(frame)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=15)
-    parser.add_argument("--levels", nargs="+", choices=list(SIMD_ENV), default=list(SIMD_ENV))
-    parser.add_argument("--disparity-range", type=int, default=64)
-    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    if "--child" in sys.argv:
-        child(parser.parse_args().disparity_range)
-        return
-    args = parse_bench_arguments(parser)
-    arguments = [__file__, "--child", "--disparity-range", str(args.disparity_range)]
-    children = {level: start(arguments, {**os.environ, **simd_env(level)}) for level in args.levels}
-    machines, runs = frames_in_turn(children, args.repeat)
+    args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 64, child)
     day = time.strftime("%Y-%m-%d")
     print(f"BM 640x480 (anchor frames), {args.disparity_range} disparities, window 15, {args.repeat} frames, {day}")
-    columns = ("level", "CPU", "numba SIMD", "OpenCV SIMD", *(f"{w} ms" for w in WAYS), "ours / OpenCV, 1 thread")
+    columns = (*LEVEL_COLUMNS, *(f"{w} ms" for w in WAYS), "ours / OpenCV, 1 thread")
     if args.markdown:
         print(table_header((*columns, "ours / OpenCV, halves")))
     for level, runs_of_level in runs.items():
         ms = {w: statistics.median(f[w] for f in runs_of_level) for w in WAYS}
-        machine = machines[level]
-        numba_level = machine["numba"].split(";")[0]
-        opencv_widest = [x.strip("*") for x in machine["opencv"].split("(")[0].split() if not x.endswith("?")][-1]
-        cells = (level, machine["cpu"], numba_level, f"up to {opencv_widest}", *(f"{ms[w]:.2f}" for w in WAYS))
+        cells = (*level_cells(level, machines[level]), *(f"{ms[w]:.2f}" for w in WAYS))
         cells += (times(ms[WAYS[1]] / ms[WAYS[0]]), times(ms[WAYS[3]] / ms[WAYS[2]]))
         print(table_row(cells) if args.markdown else "  ".join(cells))
 

@@ -13,17 +13,15 @@ their ratios against `default`. 640x480 EuRoC pair, 128 disparities.
 
 from __future__ import annotations
 
-import argparse
-import os
 import statistics
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from interleaved import IDLE_S, frames_in_turn, serve, start
-from markdown_table import parse_bench_arguments, table_header, table_row, times
-from readme_figures import SIMD_ENV, simd_env
+from interleaved import IDLE_S
+from markdown_table import table_header, table_row, times
+from simd_levels import LEVEL_COLUMNS, level_cells, run_levels, serve_level
 
 # (name, profile, overrides): OpenCV SGBM 3-way, then census_sgm with 6 paths (the profile), 8 and 5
 PROFILES: tuple[tuple[str, str, dict[str, int]], ...] = (
@@ -40,7 +38,6 @@ def child(disparity_range: int) -> None:
 
     from stereo_depth.core.params import make_params
     from stereo_depth.core.pipeline import StereoPipeline
-    from stereo_depth.machine import cpu_model, numba_simd, opencv_simd
 
     left, right, camera = load_pair(640, 480)
     pipelines = {
@@ -55,41 +52,20 @@ def child(disparity_range: int) -> None:
             ms[name] = pipeline.match(left, right, camera).timings_ms["match"]
         return ms
 
-    serve(frame, {"cpu": cpu_model(), "numba": numba_simd(), "opencv": opencv_simd()})
+    serve_level(frame)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=15)
-    parser.add_argument("--levels", nargs="+", choices=list(SIMD_ENV), default=list(SIMD_ENV))
-    parser.add_argument("--disparity-range", type=int, default=128)
-    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    if "--child" in sys.argv:
-        child(parser.parse_args().disparity_range)
-        return
-    args = parse_bench_arguments(parser)
-    arguments = [__file__, "--child", "--disparity-range", str(args.disparity_range)]
-    children = {level: start(arguments, {**os.environ, **simd_env(level)}) for level in args.levels}
-    machines, runs = frames_in_turn(children, args.repeat)
+    args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 128, child)
     names = [name for name, _, _ in PROFILES]
-    columns = (
-        "level",
-        "CPU",
-        "numba SIMD",
-        "OpenCV SIMD",
-        *(f"{n} ms" for n in names),
-        *(f"{n} / default" for n in names[1:]),
-    )
+    columns = (*LEVEL_COLUMNS, *(f"{n} ms" for n in names), *(f"{n} / default" for n in names[1:]))
     day = time.strftime("%Y-%m-%d")
     print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved; {day}")
     if args.markdown:
         print(table_header(columns))
     for level, frames in runs.items():
         ms = {n: statistics.median(f[n] for f in frames) for n in names}
-        machine = machines[level]
-        numba_level = machine["numba"].split(";")[0]
-        opencv_widest = [x.strip("*") for x in machine["opencv"].split("(")[0].split() if not x.endswith("?")][-1]
-        cells = (level, machine["cpu"], numba_level, f"up to {opencv_widest}", *(f"{ms[n]:.1f}" for n in names))
+        cells = (*level_cells(level, machines[level]), *(f"{ms[n]:.1f}" for n in names))
         cells += tuple(times(ms[n] / ms["default"]) for n in names[1:])
         print(table_row(cells) if args.markdown else "  ".join(cells))
 
