@@ -158,6 +158,22 @@ def test_a_subscriber_an_output_cannot_serve_is_warned_about_once_with_the_polic
         ros.node.destroy_subscription(subscription)
 
 
+def test_subscribers_an_output_serves_are_not_warned_about(ros: RosHarness, node: NodeProcess) -> None:
+    """A viewer or Nav2 subscribing with plain QoS gets the output: no "No messages will be sent" line for it
+    (the graph reports their deadline as infinite, the output's creation profile leaves it unset)."""
+    topic = f"{NS}/depth"
+    before = incompatible_lines(node, topic)  # another test's subscriber may have been warned about
+    qos_profiles = (1, reliable_qos(10))
+    subscriptions = [ros.node.create_subscription(Image, topic, lambda _msg: None, qos) for qos in qos_profiles]
+    try:
+        wait_until(lambda: ros.node.count_publishers(topic) == 1, "the output in the graph")
+        time.sleep(2 * QOS_FULL_RECHECK_S)  # the node looks at every subscription within one full recheck
+        assert incompatible_lines(node, topic) == before
+    finally:
+        for subscription in subscriptions:
+            ros.node.destroy_subscription(subscription)
+
+
 def test_a_publisher_of_another_type_on_an_input_is_warned_about_once_with_both_types(
     ros: RosHarness, node: NodeProcess
 ) -> None:

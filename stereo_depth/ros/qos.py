@@ -93,7 +93,7 @@ class SubscriberWatch:
         if count == self._count and not everything:
             return
         self._count = count
-        offered = self._publisher.qos_profile
+        offered = self._offered(topic)
         seen = set()
         for info in self._node.get_subscriptions_info_by_topic(topic):
             gid = bytes(info.endpoint_gid)
@@ -107,6 +107,16 @@ class SubscriberWatch:
                 f"sent to it. Last incompatible policy: {policy}"
             )
         self._warned &= seen
+
+    def _offered(self, topic: str) -> QoSProfile:
+        """The output's QoS as the graph reports it, the way it reports the subscriptions': the profile the
+        publisher was created with leaves the deadline and the lifespan unset (0), which rclpy's check
+        finds incompatible with the graph's "infinite" of every plain subscriber (a false warning)."""
+        name, namespace = self._node.get_name(), self._node.get_namespace()
+        for info in self._node.get_publishers_info_by_topic(topic):
+            if info.node_name == name and info.node_namespace == namespace:
+                return info.qos_profile
+        return self._publisher.qos_profile  # not in the graph yet
 
 
 def input_qos(reliability: ReliabilityPolicy, depth: int) -> QoSProfile:
