@@ -115,7 +115,8 @@ class SubscriberWatch:
         name, namespace = self._node.get_name(), self._node.get_namespace()
         for info in self._node.get_publishers_info_by_topic(topic):
             if info.node_name == name and info.node_namespace == namespace:
-                return info.qos_profile
+                reported: QoSProfile = info.qos_profile
+                return reported
         return self._publisher.qos_profile  # not in the graph yet
 
 
