@@ -32,7 +32,6 @@ ahead).
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -95,13 +94,17 @@ class BlockMatcher:
 
     def __init__(self, params: StereoParams) -> None:
         self._params = params
-        self._kernel = rows_kernel(params.disparity_range)
+        self._prefilter = _prefilter_kernel()
+        self._kernel = _compiled_band_kernel(params.disparity_range)
+        uniqueness = round(params.uniqueness_ratio)  # OpenCV takes an int (stereo_image_proc rounds it too)
+        window, cap = params.correlation_window_size, params.prefilter_cap
+        self._settings = (params.min_disparity, window, cap, params.texture_threshold, uniqueness)
 
     def prepare(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cap = self._params.prefilter_cap
         out = np.empty_like(left), np.empty_like(right)
-        _prefilter_kernel()(np.ascontiguousarray(left), cap, out[0])
-        _prefilter_kernel()(np.ascontiguousarray(right), cap, out[1])
+        self._prefilter(np.ascontiguousarray(left), cap, out[0])
+        self._prefilter(np.ascontiguousarray(right), cap, out[1])
         return out
 
     def band(self, prefiltered: tuple[np.ndarray, np.ndarray], start: int, stop: int, half: int = 0) -> np.ndarray:
@@ -114,25 +117,8 @@ class BlockMatcher:
         x0, x1, y0, y1 = valid_region(width, height, p)
         first, last = max(start, y0), min(stop, y1)
         if x0 < x1 and first < last:
-            self._kernel(left, right, p, first, last, x0, x1, out[first - start : last - start])
+            self._kernel(left, right, *self._settings, first, last, x0, x1, out[first - start : last - start])
         return out
-
-
-BandKernel = Callable[[np.ndarray, np.ndarray, StereoParams, int, int, int, int, np.ndarray], None]
-
-
-def rows_kernel(disparities: int) -> BandKernel:
-    """The band kernel for this disparity count (compiled on first use, then loaded from numba's cache)."""
-    kernel = _compiled_band_kernel(disparities)
-
-    def run(
-        left: np.ndarray, right: np.ndarray, p: StereoParams, first: int, last: int, x0: int, x1: int, out: np.ndarray
-    ) -> None:
-        uniqueness = round(p.uniqueness_ratio)  # OpenCV takes an int (stereo_image_proc rounds it too)
-        settings = (p.min_disparity, p.correlation_window_size, p.prefilter_cap, p.texture_threshold, uniqueness)
-        kernel(left, right, *settings, first, last, x0, x1, out)
-
-    return run
 
 
 @functools.cache
