@@ -6,9 +6,10 @@ ROS-free. Three tables, one dataclass each, one field per option (`option(defaul
 - `OutputOptions`: how outputs are built, live and offline alike (node parameters, `process --set`);
 - `NodeOptions`: inputs, sync, QoS, which outputs: a live node's (`process` reads the sync ones).
 
-The nodes' ROS parameters (ros/parameters.py), config/stereo_depth.yaml and the README's table
+The nodes' ROS parameters (ros/parameters.py), config/stereo_depth.yaml and docs/parameters.md
 (options_docs.py), `process --set/--params` and the sync flags of `process` and `demo` are read from
 these fields. Adding an option is adding a field to one of them (and regenerating the two documents).
+Descriptions say what an option does; what it costs or gains, measured, belongs in docs/tuning.md.
 """
 
 from __future__ import annotations
@@ -220,7 +221,7 @@ class NodeOptions:
     matching_threads: int = option(
         1,
         "Frames matched at once, outputs kept in input order. 2 raises the rate of a matcher that leaves "
-        "cores idle (census_sgm: 1.3-1.4x on 2 cores, bench/parallel_matching.py) at the cost of latency",
+        "cores idle (census_sgm) at the cost of latency",
         1,
         4,
         1,
@@ -228,8 +229,8 @@ class NodeOptions:
     executor: str = option(
         "standard",
         "rclpy executor, read at start-up: standard (SingleThreadedExecutor) or events (rclpy's experimental "
-        "C++ EventsExecutor: disparity 2-4 ms sooner, 3 ms less CPU a frame on a 2-core Zen 3, "
-        "bench/e2e_dds.py; diagnostics then lack the inputs' time in DDS, which it does not pass on)",
+        "C++ EventsExecutor: less latency and CPU a frame; diagnostics then lack the inputs' time in DDS, "
+        "which it does not pass on)",
         choices=("standard", "events"),
     )
     image_transport: str = option(

@@ -8,7 +8,7 @@ Pure Python, no ROS import: the live nodes and the offline bag reader pair frame
 Calibration inputs (camera_info) are paired differently from images, because over DDS they are the
 messages most often lost: a reliable writer repairs a small sample only after its next periodic
 heartbeat, by when its history has often moved on, and the transport drops the small samples first
-when a burst of image fragments fills it (measured: bench/e2e_dds.py, README "Inputs and outputs over DDS").
+when a burst of image fragments fills it (measured: bench/e2e_dds.py, docs/dds.md#any-publish-order-any-skew).
 So `calibrations` maps each camera_info input to the input whose stamp it carries; the other inputs
 (images, disparity) are paired as above, and each camera_info joins its image by stamp. When that
 exact message is missing once the camera_info topic has moved past the stamp, or once the images of a

@@ -233,7 +233,7 @@ def test_diagnostics_count_what_pairing_did_per_topic_and_name_the_bottleneck() 
     assert "/r/camera_info missing, last one used" not in values  # shown once it happens
     bottleneck = values["bottleneck"]
     assert bottleneck.startswith("input /l/camera_info") and "matching slower" in bottleneck
-    assert "Inputs and outputs over DDS" in bottleneck
+    assert "docs/dds.md#where-frames-go" in bottleneck  # a page that exists (test_docs.py)
     assert report()["bottleneck"] == "none"  # nothing lost since the previous report
 
 

@@ -1,4 +1,4 @@
-"""One home for options: the documents and the command line are derived from the option tables."""
+"""One home for options: the command line is derived from the option tables (the documents: test_docs.py)."""
 
 from __future__ import annotations
 
@@ -11,14 +11,8 @@ from stereo_depth.cli import build_parser, main
 from stereo_depth.commands import process as process_command
 from stereo_depth.core.matching import MATCHERS
 from stereo_depth.core.params import MATCHER_NAMES
-from stereo_depth.options_docs import README, readme_with_table
 
 MIDDLEBURY_BAG = Path(__file__).resolve().parents[1] / "bags" / "middlebury"
-
-
-def test_readme_table_lists_every_parameter_as_the_code_defines_it() -> None:
-    text = README.read_text()
-    assert text == readme_with_table(text), "README.md's table is stale: python -m stereo_depth.options_docs readme"
 
 
 def test_every_matcher_name_the_parameters_accept_has_a_core() -> None:

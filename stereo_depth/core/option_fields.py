@@ -1,7 +1,7 @@
 """How an option is declared: a dataclass field whose metadata holds its doc, range and choices.
 
 The option classes (`StereoParams` here in core, the output and node options in `stereo_depth.options`)
-are made of such fields, so that the ROS parameter descriptors, the config YAML, the README's table
+are made of such fields, so that the ROS parameter descriptors, the config YAML, docs/parameters.md
 and the command-line flags are all read from one statement per option. Pure Python, no ROS.
 """
 

@@ -59,10 +59,10 @@ class StereoParams:
     census_paths: int = option(
         6,
         "census_sgm aggregation paths: 6 (those of 5 and a path from below on every other row and column, "
-        "computed first; within 0.0011 of 8 in bad-1, bad-2 and density over 38 scenes), 8 (two sweeps over the "
-        "whole cost volume: the 4 straight paths and both diagonals both ways) or 5 (the 2 horizontal "
-        "paths and the 3 from the row above, one pass in row strips that stay in cache; bad-1 0.010 and "
-        "bad-2 0.004 worse than 6)",
+        "computed first; about as accurate as 8), 8 (two sweeps over the whole cost volume: the 4 straight "
+        "paths and both diagonals both ways; the most accurate, the slowest) or 5 (the 2 horizontal paths "
+        "and the 3 from the row above, one pass in row strips that stay in cache; the quickest, least "
+        "accurate on slanted surfaces)",
         choices=(6, 8, 5),
     )
     confidence_threshold: float = option(

@@ -1,5 +1,7 @@
 """disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract),
-with stereo_node's temporal filter (`temporal_filter`, the same `filter_over_time`)."""
+with stereo_node's temporal filter (`temporal_filter`).
+
+The filter is the same `filter_over_time` stereo_node runs, so the split chain filters as it does."""
 
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ class DisparityNode(StereoIONode):
         ("right/camera_info", CameraInfo),
     )
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
+    OUTPUTS = (("disparity", DisparityImage),)
     OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, *TEMPORAL_OPTIONS, "cpu_threads")
     WITH_STEREO = True
 
@@ -34,7 +37,7 @@ class DisparityNode(StereoIONode):
         super().__init__("disparity_node")
 
     def open_outputs(self) -> None:
-        self._disparity = self.output(DisparityImage, "disparity")
+        self._disparity = self.declared_output("disparity")
         self._temporal = TemporalFilter()  # frames come one at a time, in the order they were matched
         self._buffer = MessageBuffer()  # the disparity's bytes, reused: each message is published before the next
 

@@ -32,6 +32,7 @@ class PointCloudNode(StereoIONode):
         ("disparity", DisparityImage),
     )
     CALIBRATIONS = ((1, 0), (2, 3))  # the disparity carries the left image's stamp
+    OUTPUTS = (("points2", PointCloud2),)
     OPTIONS = (*INPUT_OPTIONS, *CLOUD_OPTIONS, "baseline")
 
     def __init__(self) -> None:
@@ -39,7 +40,7 @@ class PointCloudNode(StereoIONode):
 
     def open_outputs(self) -> None:
         self.pipeline = StereoPipeline()  # only its calibration and ray caches are used here
-        self._points = self.output(PointCloud2, "points2")
+        self._points = self.declared_output("points2")
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:

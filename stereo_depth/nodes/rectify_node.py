@@ -25,6 +25,7 @@ from stereo_depth.ros.types import RCLPY_TYPES
 class RectifyNode(StereoIONode):
     INPUTS = (("image", Image), ("camera_info", CameraInfo))
     CALIBRATIONS = ((1, 0),)
+    OUTPUTS = (("image_rect", Image),)
     OPTIONS = (*INPUT_OPTIONS, "interpolation")
 
     def __init__(self) -> None:
@@ -32,7 +33,7 @@ class RectifyNode(StereoIONode):
 
     def open_outputs(self) -> None:
         self._maps: tuple[Calibration, tuple[np.ndarray, np.ndarray] | None] | None = None
-        self._rect = self.output(Image, "image_rect")
+        self._rect = self.declared_output("image_rect")
 
     def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
         image_msg, info_msg = messages

@@ -1,8 +1,8 @@
 """stereo_node: raw stereo pair in, rectified left, disparity, depth and points2 out, in one process.
 
 The node most users run: no intermediate topics, so no extra serialization of full-size images.
-Topics and parameters are stereo_image_proc's (see README); `profile:=stereo_image_proc` gives its
-defaults.
+Topics and parameters are stereo_image_proc's (docs/parameters.md lists them); `profile:=stereo_image_proc`
+gives its defaults.
 
 Two worker stages form a pipeline: the first rectifies, matches and publishes the disparity (and the
 rectified image and confidence); the second turns that disparity into depth and points2 and publishes
@@ -79,6 +79,8 @@ class StereoNode(StereoIONode):
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
     IMAGE_INPUTS = (0, 2)
     CAMERA_INFO_FILES = ((1, "left_camera_info_url"), (3, "right_camera_info_url"))
+    OUTPUTS = tuple(OUTPUT_TYPES.items())
+    OUTPUT_SWITCHES = SWITCHES
     OPTIONS = (
         *INPUT_OPTIONS,
         *CAMERA_OPTIONS,
@@ -112,7 +114,7 @@ class StereoNode(StereoIONode):
         super().__init__(name, **kwargs)
 
     def open_outputs(self) -> None:
-        self._output_publishers = {name: self.output(msg_type, name) for name, msg_type in OUTPUT_TYPES.items()}
+        self._output_publishers = {name: self.declared_output(name) for name, _ in self.OUTPUTS}
         self._state = OutputState()  # its cloud buffer is reused frame to frame: publish() serializes first
 
     def start_workers(self) -> None:

@@ -22,7 +22,8 @@ from stereo_depth.sync import SyncCounters
 WINDOW = 50  # messages per input used to estimate rates
 SILENT_AFTER_S = 3.0  # an input quiet this long while the others arrive is reported by name
 RECENT_FRAMES = 30  # frames averaged for stage times and latency
-README_DDS = 'see README "Inputs and outputs over DDS"'
+LOSS_HELP = "see docs/dds.md#large-messages"  # why DDS loses large inputs, and the fix
+BOTTLENECK_HELP = "see docs/dds.md#where-frames-go"
 
 
 @dataclass
@@ -267,7 +268,7 @@ class NodeDiagnostics:
             return DiagnosticStatus.WARN, silence
         lossy = [t for t, m in self.inputs.items() if m.missing()]
         if lossy:
-            return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}; {README_DDS}"
+            return DiagnosticStatus.WARN, f"inputs arrive slower than sent: {', '.join(lossy)}; {LOSS_HELP}"
         return DiagnosticStatus.OK, "ok"
 
     def _bottleneck(self) -> str:
@@ -286,4 +287,4 @@ class NodeDiagnostics:
         worst = sorted((n, what) for what, n in grown.items() if n > 0)
         if not worst:
             return "none"
-        return "; ".join(f"{what}: {n}" for n, what in reversed(worst)) + f"; {README_DDS}"
+        return "; ".join(f"{what}: {n}" for n, what in reversed(worst)) + f"; {BOTTLENECK_HELP}"

@@ -18,7 +18,7 @@ import itertools
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from functools import partial
 from typing import Any, TypeVar
@@ -93,6 +93,9 @@ class StereoIONode(Node):
     IMAGE_INPUTS: Sequence[int] = ()  # inputs that image_transport:=compressed reads from <topic>/compressed
     # (camera_info input, the option naming a file that replaces it; its image input is in CALIBRATIONS)
     CAMERA_INFO_FILES: Sequence[tuple[int, str]] = ()
+    OUTPUTS: Sequence[tuple[str, Any]] = ()  # (relative topic, message class) this node publishes
+    OUTPUT_SWITCHES: Mapping[str, str] = {}  # output topic -> the publish_* parameter that switches it
+    STATUS_OUTPUT: tuple[str, Any] = ("diagnostics", DiagnosticArray)  # every node's, about once a second
     OPTIONS: Sequence[str] = ()  # NodeOptions fields this node declares
     WITH_STEREO = False  # declares the processing parameters (StereoParams) and owns a pipeline
     MAX_FRAMES_AT_ONCE = 1  # worker threads; see `frames_at_once`
@@ -151,7 +154,8 @@ class StereoIONode(Node):
         if fixes is not None:
             self.get_logger().info(f"inputs corrected: {fixes}")
         self.open_outputs()
-        self._diagnostics_pub = self.output(DiagnosticArray, "diagnostics", depth=10)
+        status_topic, status_type = self.STATUS_OUTPUT
+        self._diagnostics_pub = self.output(status_type, status_topic, depth=10)
 
     def activate_io(self) -> None:
         """Workers, then the input subscriptions and the timers: frames flow from here on."""
@@ -302,6 +306,10 @@ class StereoIONode(Node):
         self._outputs.append(publisher)
         self._watches.append(SubscriberWatch(self, publisher))
         return publisher
+
+    def declared_output(self, topic: str) -> Publisher:
+        """The publisher of one of OUTPUTS (the topics docs/parameters.md lists for this node)."""
+        return self.output(dict(self.OUTPUTS)[topic], topic)
 
     def create_output(self, msg_type: Any, topic: str, qos: QoSProfile | int, **options: Any) -> Publisher:
         """A plain publisher (`options`: create_publisher's); the lifecycle node makes it a lifecycle publisher."""
@@ -597,7 +605,7 @@ def run_node(factory: Callable[[], StereoIONode], args: list[str] | None = None)
         if profile is not None:
             node.get_logger().info(
                 f"Fast DDS: large-message profile {profile} for this process (no profile was exported); see "
-                'README "Inputs and outputs over DDS"'
+                "docs/dds.md#large-messages"
             )
         executor = new_executor(node)
         executor.add_node(node)

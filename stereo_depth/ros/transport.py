@@ -1,6 +1,6 @@
 """Fast DDS transport for large messages, chosen for our own processes when the user chose none.
 
-Why (measured, README "Inputs and outputs over DDS"): Fast DDS's default shared-memory segment is
+Why (measured, docs/dds.md#large-messages): Fast DDS's default shared-memory segment is
 512 KB per publishing process, so a 9.8 MB points2 (or a 921 KB colour image) goes over fragmented
 UDP instead, where a 30 Hz stream reaches a subscriber at 18-20 Hz. The segment belongs to the
 *publisher*: a publisher with config/fastdds_large_images.xml reaches a subscriber on Fast DDS
