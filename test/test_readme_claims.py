@@ -249,8 +249,8 @@ def test_confidence_threshold_trades_density_for_confidence(node: ClaimsNode, ar
 
 
 def row_background_fill(disparity: np.ndarray) -> np.ndarray:
-    """The README's "plain background fill": each run of holes in a row takes the smaller (farther) of
-    the two valid values bounding it, or the one there is at the image border."""
+    """`hole_fill_radius: 0`, "plain background fill" (docs/parameters.md): each run of holes in a row
+    takes the smaller (farther) of the two valid values bounding it, or the one at the image border."""
     filled = disparity.copy()
     for row, out in zip(disparity, filled, strict=True):
         holes = np.flatnonzero(np.isnan(row))
