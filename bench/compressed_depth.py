@@ -4,6 +4,8 @@ The frames: the six raw EuRoC pairs of test/data/euroc (752x480), matched with t
 Per depth encoding and codec: bytes of the raw depth image against the compressedDepth message's data,
 and the encode time (messages.depth_to_compressed_depth, as frames.geometry_outputs calls it); then
 the time to build points2_clearing (max_depth 5 m). Medians over frames x repeats; the CPU is printed.
+Then with rvl asked for, per frame from all invalid to a typical EuRoC one: the codec sent (PNG where
+image_transport's decoder would refuse the RVL stream: more than 5 pixels a byte) and its bytes.
 
     flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/compressed_depth.py [--repeat 10]
 """
@@ -31,7 +33,7 @@ from stereo_depth.frames import (
     geometry_outputs,
     result_geometry,
 )
-from stereo_depth.messages import depth_to_compressed_depth, make_header
+from stereo_depth.messages import compressed_depth_codec, depth_to_compressed_depth, make_header
 from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
@@ -50,6 +52,30 @@ def median_ms(work: Callable[[], Any], repeat: int) -> tuple[float, float, Any]:
         cpus.append((time.thread_time() - start_cpu) * 1000.0)
         walls.append((time.perf_counter() - start) * 1000.0)
     return statistics.median(walls), statistics.median(cpus), result
+
+
+def mostly_invalid(shape: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The depth RVL packs tightest: a floor (one depth a row) valid only in its nearest rows, as with
+    max_depth in a large room, a dark scene or a lens cap."""
+    height, width = shape
+    floor = np.repeat(np.linspace(6.0, 1.0, height, dtype=np.float32)[:, None], width, axis=1)
+    frames = {}
+    for invalid in (100, 95, 80, 60):
+        frame = floor.copy()
+        frame[: height * invalid // 100] = np.nan
+        frames["all invalid" if invalid == 100 else f"{invalid} % invalid, smooth"] = frame
+    return frames
+
+
+def print_codec_per_frame(typical: np.ndarray, header: Any) -> None:
+    print(table_header(("frame (rvl asked for)", "depth", "codec sent", "bytes", "pixels per byte")))
+    for name, depth in {**mostly_invalid(typical.shape), "EuRoC, typical": typical}.items():
+        for encoding in ("16UC1", "32FC1"):
+            message = depth_to_compressed_depth(
+                RCLPY_TYPES, header, depth_pixels(depth, encoding), encoding, codec="rvl"
+            )
+            size = len(message.data)
+            print(f"| {name} | {encoding} | {compressed_depth_codec(message)} | {size:,} | {depth.size / size:.1f} |")
 
 
 def main() -> None:
@@ -91,6 +117,7 @@ def main() -> None:
             size = statistics.median(sizes)
             ms = f"{statistics.median(walls):.1f} / {statistics.median(cpus):.1f}"
             print(f"| {encoding} | {codec} | {raw} | {size:.0f} | {raw / size:.1f}x | {ms} |")
+    print_codec_per_frame(depths[len(depths) // 2], header)
     options = OutputOptions(max_depth=5.0)
     walls, cpus, widths = [], [], []
     for frame, geometry in geometries:

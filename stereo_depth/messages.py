@@ -285,6 +285,14 @@ def array_to_compressed(types: MessageTypes, header: Any, pixels: np.ndarray, co
 COMPRESSED_DEPTH_FORMATS = ("png", "rvl")
 _INV_DEPTH = 0  # compressed_depth_image_transport's compressionFormat enum: UNDEFINED = -1, INV_DEPTH
 _CONFIG_HEADER = np.dtype([("format", "<i4"), ("depth_param", "<f4", (2,))])  # its ConfigHeader, 12 bytes
+RVL_MAX_PIXELS_PER_BYTE = 5  # the most the transport's decoder takes (`rvl_accepted`)
+# PNG rows unfiltered: what RVL refuses is mostly runs of zeros, which deflate packs as small unfiltered
+# (3.2-3.6 kB at 752x480), and libpng's adaptive filter choice costs 8-15 ms of such a frame, unfiltered 1-2
+_UNFILTERED = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE)
+RVL_FALLBACK_NOTE = (
+    "depth/compressedDepth: a frame of mostly invalid depth packs into fewer RVL bytes than image_transport's "
+    "decoder accepts (pixels / 5), so such frames go as PNG; each message's format string names its codec"
+)
 
 
 def depth_to_compressed_depth(
@@ -308,32 +316,63 @@ def depth_to_compressed_depth(
     saturated at 65535 where the plugin's cast would wrap), and A, B go in depthParam. 16UC1 millimetres
     are kept, 0 beyond depth_max (as the plugin; depthParam is 0 here, the plugin leaves it unset; a
     depth_max over 65.535 m keeps every value, where the plugin's cast would wrap).
-    RVL: uint32 width, uint32 height, then the RVL words.
+    RVL: uint32 width, uint32 height, then the RVL words. A frame whose RVL stream the transport's
+    decoder would refuse (`rvl_accepted`) goes as PNG; its format string says so, and the caller can
+    tell from it (`compressed_depth_codec`).
     """
+    pixels, params = _compressed_depth_pixels(depth, encoding, depth_max, depth_quantization)
+    if codec == "rvl":
+        stream = _rvl_stream(pixels)
+        if not rvl_accepted(pixels.size, stream.size):
+            codec, stream = "png", _png_stream(pixels, png_level, _UNFILTERED)
+    else:
+        stream = _png_stream(pixels, png_level)
+    config = np.array([(_INV_DEPTH, params)], dtype=_CONFIG_HEADER)
+    data = np.concatenate([config.view(np.uint8), stream])
+    return types.CompressedImage(header=header, format=f"{encoding}; compressedDepth {codec}", data=_bytes(types, data))
+
+
+def rvl_accepted(pixels: int, stream_bytes: int) -> bool:
+    """Whether image_transport's decoder takes an RVL stream of `stream_bytes` (size prefix included) for
+    `pixels` pixels. RVL compresses a real depth image at most about 4x, so codec.cpp (Jazzy, 32FC1)
+    refuses a stream of more than 5 pixels a byte as "malformed RVL-encoded image"; but mostly invalid
+    depth (a dark scene, a lens cap, max_depth in a large room) is long runs of zeros, which RVL packs
+    far tighter. Its 16UC1 path has no such check; a stricter decoder may, so both encodings keep it."""
+    return pixels <= RVL_MAX_PIXELS_PER_BYTE * stream_bytes
+
+
+def compressed_depth_codec(msg: Any) -> str:
+    """The codec a compressedDepth message holds ("png" or "rvl"), from its format string."""
+    return str(msg.format).rpartition(" ")[2]
+
+
+def _compressed_depth_pixels(
+    depth: np.ndarray, encoding: str, depth_max: float, depth_quantization: float
+) -> tuple[np.ndarray, tuple[np.float32, np.float32]]:
+    """The 16-bit image the codec compresses, and the ConfigHeader's depthParam."""
     if encoding == "32FC1":
         a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
         b = np.float32(1.0) - a / np.float32(depth_max)
         with np.errstate(invalid="ignore", divide="ignore"):
             near = depth < np.float32(depth_max)  # False for NaN
             inverse = np.where(near, a / depth + b, np.float32(0.0))
-        pixels = np.minimum(inverse, np.float32(65535.0)).astype(np.uint16)
-        params = (a, b)
-    else:
-        pixels = depth.copy()
-        pixels[pixels > min(int(depth_max * 1000.0), 65535)] = 0
-        params = (np.float32(0.0), np.float32(0.0))
-    config = np.array([(_INV_DEPTH, params)], dtype=_CONFIG_HEADER)
-    if codec == "rvl":
-        height, width = pixels.shape
-        stream = np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_compress(pixels)])
-    else:
-        ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, png_level])
-        if not ok:
-            msg = f"cannot encode a {pixels.shape[1]}x{pixels.shape[0]} depth image as PNG"
-            raise ImageError(msg)
-        stream = png.reshape(-1)
-    data = np.concatenate([config.view(np.uint8), stream])
-    return types.CompressedImage(header=header, format=f"{encoding}; compressedDepth {codec}", data=_bytes(types, data))
+        return np.minimum(inverse, np.float32(65535.0)).astype(np.uint16), (a, b)
+    pixels = depth.copy()
+    pixels[pixels > min(int(depth_max * 1000.0), 65535)] = 0
+    return pixels, (np.float32(0.0), np.float32(0.0))
+
+
+def _rvl_stream(pixels: np.ndarray) -> np.ndarray:
+    height, width = pixels.shape
+    return np.concatenate([np.array([width, height], "<u4").view(np.uint8), rvl_compress(pixels)])
+
+
+def _png_stream(pixels: np.ndarray, png_level: int, options: tuple[int, ...] = ()) -> np.ndarray:
+    ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, png_level, *options])
+    if not ok:
+        msg = f"cannot encode a {pixels.shape[1]}x{pixels.shape[0]} depth image as PNG"
+        raise ImageError(msg)
+    return png.reshape(-1)
 
 
 def encoding_for(array_: np.ndarray) -> str:

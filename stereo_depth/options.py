@@ -85,7 +85,9 @@ class OutputOptions:
     )
     compressed_depth_format: str = option(
         "png",
-        "depth/compressedDepth codec: png or rvl (image_transport's compressedDepth format)",
+        "depth/compressedDepth codec: png or rvl (image_transport's compressedDepth format); rvl sends a "
+        "frame as PNG where its RVL stream is too small for image_transport's decoder to accept (mostly "
+        "invalid depth)",
         choices=COMPRESSED_DEPTH_FORMATS,
     )
     compressed_depth_max_depth: float = option(

@@ -5,7 +5,9 @@ raw EuRoC pair and from `stereo-depth process` on the bundled bag.
 The compressedDepth messages are decoded here by the documented layout alone (compressed_depth_image_
 transport's codec.cpp and rvl_codec.cpp): format "<encoding>; compressedDepth <png|rvl>", a 12-byte
 ConfigHeader (int32 compressionFormat, float32 depthParam[2]), then PNG, or RVL (uint32 width, uint32
-height, then 4-bit groups in little-endian int32 words, the first group in the top bits).
+height, then 4-bit groups in little-endian int32 words, the first group in the top bits), with the
+checks by which that decoder drops a message, so a frame image_transport's own subscriber would drop
+fails here too.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from compressed_depth import mostly_invalid  # bench/ (on the path by conftest): the frames RVL packs tightest
 from diagnostic_msgs.msg import DiagnosticArray
 from ros_helpers import NodeProcess, RosHarness, wait_until
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
@@ -29,7 +32,19 @@ from test_nodes import Pair, StereoInput, euroc_pair, send_with_parameters, wait
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
 from stereo_depth.core.rvl import rvl_compress
-from stereo_depth.messages import cloud_to_arrays, disparity_from_msg, image_to_array
+from stereo_depth.frames import depth_pixels
+from stereo_depth.messages import (
+    COMPRESSED_DEPTH_FORMATS,
+    RVL_FALLBACK_NOTE,
+    array_to_image,
+    cloud_to_arrays,
+    compressed_depth_codec,
+    depth_to_compressed_depth,
+    disparity_from_msg,
+    image_to_array,
+    make_header,
+)
+from stereo_depth.ros.types import RCLPY_TYPES
 
 NS = "/clear"
 BAG = Path(__file__).resolve().parents[1] / "bags" / "euroc_raw"
@@ -70,40 +85,72 @@ def rvl_decode(data: bytes, pixels: int) -> np.ndarray:
     return out.astype(np.uint16)
 
 
+BIT_DEPTHS = {"16UC1": 16, "32FC1": 32}  # sensor_msgs::image_encodings::bitDepth, the two codec.cpp takes
+
+
+def format_as_read(format_: str) -> tuple[str, str]:
+    """(encoding, codec) as codec.cpp's decodeCompressedDepthImage reads the format string: the encoding
+    before the first ';', the codec from "compressedDepth png|rvl" after it (png when only
+    "compressedDepth" or no ';' at all, as older publishers wrote); anything else it drops."""
+    encoding, semicolon, ending = format_.partition(";")
+    if not semicolon or "compressedDepth png" in ending:
+        return encoding, "png"
+    if "compressedDepth rvl" in ending:
+        return encoding, "rvl"
+    assert "compressedDepth" in ending and "compressedDepth " not in ending, f"unsupported format: {format_}"
+    return encoding, "png"
+
+
 def decode_compressed_depth(msg: Any) -> tuple[np.ndarray, str, str]:
-    """(depth as the subscriber gives it, encoding, codec): 32FC1 metres (NaN invalid) or 16UC1 mm."""
-    encoding, _, rest = str(msg.format).partition("; compressedDepth ")
+    """(depth as the subscriber gives it, encoding, codec): 32FC1 metres (NaN invalid) or 16UC1 mm.
+
+    Fails where codec.cpp (Jazzy) returns no image: data no longer than the ConfigHeader; an RVL size
+    with a zero; an RVL stream (size included) of fewer bytes than pixels / 5, which it takes for a
+    corrupt one ("malformed RVL-encoded image"). That last check guards only its 32FC1 path; a stricter
+    decoder may apply it to 16UC1, so here it holds for both."""
+    encoding, codec = format_as_read(str(msg.format))
+    assert encoding in BIT_DEPTHS, f"codec.cpp decodes 16- and 32-bit depth, not {encoding}"
     data = bytes(msg.data)
+    assert len(data) > 12, "no image after the ConfigHeader"
     compression_format, quant_a, quant_b = struct.unpack("<iff", data[:12])
     assert compression_format == 0  # INV_DEPTH
+    image_data = data[12:]
     pixels: np.ndarray | None
-    if rest == "rvl":
-        width, height = struct.unpack("<II", data[12:20])
-        pixels = rvl_decode(data[20:], width * height).reshape(height, width)
+    if codec == "rvl":
+        width, height = struct.unpack("<II", image_data[:8])
+        assert width and height, f"malformed RVL-encoded image: size {width}x{height} contains zero"
+        count = width * height
+        assert count <= min(2**31 - 1, len(image_data) * 5), (
+            f"malformed RVL-encoded image: {count} pixels from {len(image_data)} bytes"
+        )
+        pixels = rvl_decode(image_data[8:], count).reshape(height, width)
     else:
-        assert rest == "png"
-        pixels = cv2.imdecode(np.frombuffer(data[12:], np.uint8), cv2.IMREAD_UNCHANGED)
-    assert pixels is not None and pixels.dtype == np.uint16
+        pixels = cv2.imdecode(np.frombuffer(image_data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert pixels is not None and pixels.dtype == np.uint16 and pixels.ndim == 2
     if encoding == "16UC1":
-        return pixels, encoding, rest
+        return pixels, encoding, codec
     with np.errstate(divide="ignore"):
         depth = np.float32(quant_a) / (pixels.astype(np.float32) - np.float32(quant_b))
     depth[pixels == 0] = np.nan
-    return depth, encoding, rest
+    return depth, encoding, codec
 
 
-def assert_decodes_to_depth(compressed: Any, depth_msg: Any, depth_max: float = 10.0, z0: float = 100.0) -> None:
+def assert_decodes_to_depth(
+    compressed: Any, depth_msg: Any, depth_max: float = 10.0, z0: float = 100.0, min_valid: float = 0.0
+) -> None:
+    """`compressed` passes the standard decoder's checks and gives `depth_msg`'s depth: exactly for 16UC1,
+    within one step of the 16-bit inverse depth for 32FC1; `min_valid`: the share of depth it must keep."""
     decoded, encoding, _ = decode_compressed_depth(compressed)
     depth = image_to_array(depth_msg)
     assert encoding == depth_msg.encoding and decoded.shape == depth.shape
     if encoding == "16UC1":  # lossless, but nothing beyond depth_max (the plugin's rule)
         expected = np.where(depth > depth_max * 1000, 0, depth)
         np.testing.assert_array_equal(decoded, expected)
-        assert (expected > 0).mean() > 0.5
+        assert (expected > 0).mean() >= min_valid
         return
     kept = depth < depth_max  # NaN and depth_max and beyond: invalid after the round trip
     np.testing.assert_array_equal(np.isfinite(decoded), kept)
-    assert kept.mean() > 0.5
+    assert kept.mean() >= min_valid
     # 16-bit inverse depth q = A / z + B, truncated: the decoded depth is never nearer, and its inverse
     # is off by less than one step 1 / A (A = z0 (z0 + 1)); 1e-6 of float32 rounding on top
     a = z0 * (z0 + 1)
@@ -119,6 +166,29 @@ def test_rvl_words_are_the_documented_groups_in_order() -> None:
     assert rvl_compress(np.array([[0, 0, 5, 7, 0]], np.uint16)).tobytes() == bytes.fromhex("0041a122")
     ramp = np.arange(1, 41, dtype=np.uint16).reshape(5, 8)  # no zero run first: an empty one is written
     np.testing.assert_array_equal(rvl_decode(rvl_compress(ramp).tobytes(), ramp.size), ramp.ravel())
+
+
+def depth_frames() -> dict[str, np.ndarray]:
+    """32FC1 depth at EuRoC's size, from the frames RVL packs tightest (the bench's: a floor valid only
+    in its nearest rows) to a typical one: a wall at 4 m with a matcher's noise and holes."""
+    rng = np.random.default_rng(0)
+    wall = np.float32(4.0) + rng.normal(0.0, 0.02, (480, 752)).astype(np.float32)
+    wall[cv2.resize(rng.random((12, 19)), (752, 480), interpolation=cv2.INTER_NEAREST) < 0.2] = np.nan
+    return {**mostly_invalid(wall.shape), "typical": wall}
+
+
+@pytest.mark.parametrize("codec", COMPRESSED_DEPTH_FORMATS)
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_every_compressed_depth_frame_passes_the_standard_decoders_checks(encoding: str, codec: str) -> None:
+    """RVL packs runs of invalid pixels far tighter than image_transport's decoder believes RVL can (5
+    pixels a byte): it drops such a 32FC1 frame as corrupt. With rvl asked for, those frames go as PNG."""
+    header = make_header(RCLPY_TYPES, 1, "cam0")
+    for name, depth in depth_frames().items():
+        pixels = depth_pixels(depth, encoding)
+        compressed = depth_to_compressed_depth(RCLPY_TYPES, header, pixels, encoding, codec=codec)
+        assert_decodes_to_depth(compressed, array_to_image(RCLPY_TYPES, header, pixels, encoding))
+        if codec == "rvl" and name in ("all invalid", "typical"):
+            assert compressed_depth_codec(compressed) == ("png" if name == "all invalid" else "rvl"), name
 
 
 # ---------------------------------------------------------------- live
@@ -140,7 +210,7 @@ def nav(ros: RosHarness, ros_env: dict[str, str], tmp_path_factory: pytest.TempP
             wait_until(lambda c=collector: c.subscription.get_publisher_count() >= 1, "outputs matched")
         inputs = StereoInput(ros, NS)
         inputs.wait_matched()
-        yield {"inputs": inputs, **collectors}
+        yield {"inputs": inputs, "node": node, **collectors}
 
 
 def send(ros: RosHarness, nav: dict[str, Any], pair: Pair, **options: Any) -> dict[str, Any]:
@@ -226,7 +296,19 @@ def test_compressed_depth_decodes_to_the_depth_image(
     assert compressed.format == f"{encoding}; compressedDepth {codec}"
     assert compressed.header == got["depth"].header
     assert len(compressed.data) < len(got["depth"].data) / 2
-    assert_decodes_to_depth(compressed, got["depth"])
+    assert_decodes_to_depth(compressed, got["depth"], min_valid=0.5)
+
+
+def test_rvl_sends_depth_with_nothing_valid_as_png_and_says_so_once(
+    ros: RosHarness, nav: dict[str, Any], euroc: Pair
+) -> None:
+    for _ in range(2):
+        got = send(ros, nav, euroc, compressed_depth_format="rvl", max_depth=0.3)  # nothing so near
+        assert got["depth/compressedDepth"].format == "32FC1; compressedDepth png"
+        assert_decodes_to_depth(got["depth/compressedDepth"], got["depth"])
+    node: NodeProcess = nav["node"]
+    wait_until(lambda: RVL_FALLBACK_NOTE in node.output(), "the fallback logged")
+    assert node.output().count(RVL_FALLBACK_NOTE) == 1
 
 
 # ---------------------------------------------------------------- offline
@@ -250,7 +332,7 @@ def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -
     assert "/stereo/points2" in written  # the defaults: what stereo_node publishes unless told
     assert not written & {"/stereo/points2_clearing", "/stereo/depth/compressedDepth"}
     for index, full_msg in enumerate(full_depths):
-        assert_decodes_to_depth(got["depth/compressedDepth"][index], got["depth"][index], depth_max=20.0)
+        assert_decodes_to_depth(got["depth/compressedDepth"][index], got["depth"][index], depth_max=20.0, min_valid=0.5)
         full = image_to_array(full_msg).astype(np.float64) / 1000.0
         pixels, z = clearing_pixels(got["points2_clearing"][index], got["depth/camera_info"][index], full.shape)
         assert (full > 5.0).sum() > 1000

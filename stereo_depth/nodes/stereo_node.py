@@ -29,6 +29,7 @@ from stereo_msgs.msg import DisparityImage
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.frames import OUTPUTS, Geometry, OutputState, frame_outputs
+from stereo_depth.messages import RVL_FALLBACK_NOTE, compressed_depth_codec
 from stereo_depth.options import (
     CAMERA_OPTIONS,
     CLOUD_OPTIONS,
@@ -153,6 +154,9 @@ class StereoNode(StereoIONode):
         def publish_cloud(messages: dict[str, Any], geometry: Geometry | None) -> None:
             del geometry  # the messages are all the node needs
             self._publish(messages, stages)
+            compressed = messages.get("depth/compressedDepth")
+            if compressed is not None and compressed_depth_codec(compressed) != settings.output.compressed_depth_format:
+                self.get_logger().info(RVL_FALLBACK_NOTE, once=True)
             self.finish_frame(frame.stamp_ns, {**result.timings_ms, **stages})
 
         with self.outputs_in_order() as newest:
