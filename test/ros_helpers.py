@@ -5,6 +5,8 @@ Every wait has a generous deadline (this runs on 2-core machines) and nothing as
 
 from __future__ import annotations
 
+import ctypes
+import os
 import signal
 import subprocess
 import sys
@@ -39,6 +41,20 @@ def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOU
     raise TimeoutError(msg)
 
 
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before any fork: the child only calls it
+
+
+def _die_with_the_test_run(parent: int) -> None:
+    """A node's preexec: the kernel kills it when the pytest process that started it dies (killed, crashed,
+    a CI job cancelled), so no node outlives its run to answer the next one on this domain id. (The kernel
+    watches the thread that forked: tests start nodes from pytest's main thread, which lives as long as
+    the run.)"""
+    _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # the test run died before the line above
+        os._exit(1)
+
+
 class NodeProcess:
     """One node as its console script (`<venv>/bin/<module> --ros-args ...`, what `ros2 run` starts), or with
     `as_module` as `python -m stereo_depth.nodes.<module>`; output kept in a file. A failing test's report
@@ -64,12 +80,14 @@ class NodeProcess:
             if as_module
             else [Path(sys.executable).with_name(module)]
         )
+        parent = os.getpid()
         with self.log.open("wb") as out:
             self.process = subprocess.Popen(
                 [*command, "--ros-args", "-r", f"__ns:={namespace}", *args],
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,
+                preexec_fn=lambda: _die_with_the_test_run(parent),
             )
         self.stopped_at: float | None = None  # time.time() when stopped
         NodeProcess.started.append(self)
