@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 import pytest
+from parent_death import die_with_parent
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.formats.euroc import stereo_camera_infos
@@ -73,6 +74,14 @@ def assert_same_calibration(got: Any, expected: Any, what: object = "") -> None:
         a, b = np.asarray(getattr(got, name)), np.asarray(getattr(expected, name))
         scale = max(1.0, float(np.abs(b).max(initial=0.0)))
         np.testing.assert_allclose(a, b, rtol=0, atol=CALIBRATION_RTOL * scale, err_msg=f"{what} {name}")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """An xdist worker dies with the pytest that started it (and its nodes with it: parent_death.py); else a
+    worker in a hung test would outlive a killed run until its timeout."""
+    del config
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        die_with_parent(os.getppid())
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -5,7 +5,6 @@ Every wait has a generous deadline (waiting.py) and nothing asserts a duration.
 
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
 import subprocess
@@ -18,6 +17,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import rclpy
+from parent_death import die_with_parent
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -29,20 +29,6 @@ from waiting import wait_until as wait_until
 from stereo_depth.messages import stamp_to_ns
 
 STOP_TIMEOUT_S = 60.0  # a node's DDS teardown on a loaded 2-core machine can take seconds
-
-
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
-_prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before any fork: the child only calls it
-
-
-def _die_with_the_test_run(parent: int) -> None:
-    """A node's preexec: the kernel kills it when the pytest process that started it dies (killed, crashed,
-    a CI job cancelled), so no node outlives its run to answer the next one on this domain id. (The kernel
-    watches the thread that forked: tests start nodes from pytest's main thread, which lives as long as
-    the run.)"""
-    _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # the test run died before the line above
-        os._exit(1)
 
 
 class NodeProcess:
@@ -77,7 +63,7 @@ class NodeProcess:
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,
-                preexec_fn=lambda: _die_with_the_test_run(parent),
+                preexec_fn=lambda: die_with_parent(parent),  # no node outlives a killed test run
             )
         self.stopped_at: float | None = None  # time.time() when stopped
         NodeProcess.started.append(self)
