@@ -16,6 +16,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchContext, LaunchDescription
+from stereo_depth.core.params import PROFILES
 
 PACKAGE = "stereo_depth"
 ARGUMENTS = {
@@ -23,7 +24,7 @@ ARGUMENTS = {
     "left_namespace": ("left", "Topic namespace of the left camera (image_raw, camera_info)"),
     "right_namespace": ("right", "Topic namespace of the right camera"),
     "params_file": ("", "Parameter YAML (e.g. config/stereo_depth.yaml); empty: the profile's defaults"),
-    "profile": ("default", "Named defaults: default, stereo_image_proc, fast"),
+    "profile": ("default", f"Named defaults: {', '.join(PROFILES)}"),
     "split_nodes": ("false", "true: rectify_node x2 -> disparity_node -> point_cloud_node"),
     "color": ("false", "split_nodes only: the left camera is colour, so the cloud takes image_rect_color"),
 }
@@ -35,13 +36,17 @@ def _nodes(context: LaunchContext) -> list[Node]:
     if arg["params_file"]:
         parameters.insert(0, arg["params_file"])
     cameras = {"left": arg["left_namespace"].rstrip("/"), "right": arg["right_namespace"].rstrip("/")}
-    remaps = [
-        (f"{side}/{name}", f"{ns}/{name}")
-        for side, ns in cameras.items()
-        for name in ("image_raw", "camera_info", "image_rect", "image_rect_color")
-    ]
+
+    def to_cameras(*names: str, sides: tuple[str, ...] = ("left", "right")) -> list[tuple[str, str]]:
+        """A node's `<side>/<name>` topics renamed to the camera's own `<camera namespace>/<name>`."""
+        return [(f"{side}/{name}", f"{cameras[side]}/{name}") for side in sides for name in names]
+
     common = {"package": PACKAGE, "namespace": arg["namespace"], "parameters": parameters}
     if arg["split_nodes"].lower() != "true":
+        remaps = [
+            *to_cameras("image_raw", "camera_info"),
+            *to_cameras("image_rect", "image_rect_color", sides=("left",)),
+        ]
         return [Node(executable="stereo_node", name="stereo_node", remappings=remaps, **common)]
     cloud_image = "image_rect_color" if arg["color"].lower() == "true" else "image_rect"
     rectifiers = [
@@ -59,11 +64,16 @@ def _nodes(context: LaunchContext) -> list[Node]:
     ]
     return [
         *rectifiers,
-        Node(executable="disparity_node", name="disparity_node", remappings=remaps, **common),
+        Node(
+            executable="disparity_node",
+            name="disparity_node",
+            remappings=to_cameras("image_rect", "camera_info"),
+            **common,
+        ),
         Node(
             executable="point_cloud_node",
             name="point_cloud_node",
-            remappings=[("left/image_rect_color", f"{cameras['left']}/{cloud_image}"), *remaps],
+            remappings=[("left/image_rect_color", f"{cameras['left']}/{cloud_image}"), *to_cameras("camera_info")],
             **common,
         ),
     ]

@@ -5,17 +5,21 @@ from __future__ import annotations
 import os
 import shutil
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 import pytest
+from parent_death import die_with_parent
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
+
+if TYPE_CHECKING:
+    from ros_helpers import NodeProcess
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from domain_lock import claim_domain_id  # the benches lock their domain ids alike
@@ -72,6 +76,14 @@ def assert_same_calibration(got: Any, expected: Any, what: object = "") -> None:
         np.testing.assert_allclose(a, b, rtol=0, atol=CALIBRATION_RTOL * scale, err_msg=f"{what} {name}")
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """An xdist worker dies with the pytest that started it (and its nodes with it: parent_death.py); else a
+    worker in a hung test would outlive a killed run until its timeout."""
+    del config
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        die_with_parent(os.getppid())
+
+
 @pytest.fixture(scope="session", autouse=True)
 def ros_env() -> dict[str, str]:
     """Environment for node subprocesses: loopback discovery only, a domain id of this run's own (set in
@@ -91,6 +103,38 @@ def ros(ros_env: dict[str, str]) -> Iterator[Any]:
     harness = RosHarness()
     yield harness
     harness.close()
+
+
+@pytest.fixture
+def start_node(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
+    """Starts node processes for one test (NodeProcess's arguments, the run's environment and the test's
+    folder unless given) and stops those still running when the test ends, whatever happened in it."""
+    from ros_helpers import NodeProcess, stop_all
+
+    started: list[NodeProcess] = []
+
+    def start(
+        module: str, namespace: str, args: Iterable[str] = (), *, env: dict[str, str] | None = None, **kwargs: Any
+    ) -> NodeProcess:
+        started.append(NodeProcess(module, namespace, env or ros_env, tmp_path, args, **kwargs))
+        return started[-1]
+
+    yield start
+    stop_all(started, expect_clean=False)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_node_outlives_the_run() -> Iterator[None]:
+    """Every node a test starts is stopped by its fixture or test. One still running when the run ends
+    (after every module's fixtures) is killed here, and the run fails, naming it: it would otherwise answer
+    the next run on this domain id and keep a CI machine busy."""
+    yield
+    helpers = sys.modules.get("ros_helpers")  # loaded only by the tests that start nodes
+    alive = [node for node in helpers.NodeProcess.started if node.process.poll() is None] if helpers else []
+    for node in alive:
+        node.process.kill()
+        node.process.wait()
+    assert not alive, f"node processes still running at the end of the run (killed): {[n.fqn for n in alive]}"
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -1,42 +1,34 @@
 """Node tests over real DDS: nodes in their own processes, a test node spinning in a thread.
 
-Every wait has a generous deadline (this runs on 2-core machines) and nothing asserts a duration.
+Every wait has a generous deadline (waiting.py) and nothing asserts a duration.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, ClassVar
 
 import rclpy
+from parent_death import die_with_parent
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from waiting import TIMEOUT_S as TIMEOUT_S  # re-exported: the node tests import them from here
+from waiting import wait_until as wait_until
 
 from stereo_depth.messages import stamp_to_ns
 
-TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 60.0  # a node's DDS teardown on a loaded 2-core machine can take seconds
-
-
-def wait_until(condition: Callable[..., Any], what: str, timeout: float = TIMEOUT_S, poll: float = 0.02) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(poll)
-    msg = f"timed out after {timeout} s waiting for {what}"
-    raise TimeoutError(msg)
 
 
 class NodeProcess:
@@ -64,12 +56,14 @@ class NodeProcess:
             if as_module
             else [Path(sys.executable).with_name(module)]
         )
+        parent = os.getpid()
         with self.log.open("wb") as out:
             self.process = subprocess.Popen(
                 [*command, "--ros-args", "-r", f"__ns:={namespace}", *args],
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,
+                preexec_fn=lambda: die_with_parent(parent),  # no node outlives a killed test run
             )
         self.stopped_at: float | None = None  # time.time() when stopped
         NodeProcess.started.append(self)

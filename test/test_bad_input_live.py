@@ -560,11 +560,13 @@ BAD_START = {
 }
 
 
-def test_invalid_start_up_parameters_stop_the_node_with_the_reason(ros_env: dict[str, str], tmp_path: Path) -> None:
+def test_invalid_start_up_parameters_stop_the_node_with_the_reason(
+    start_node: Callable[..., NodeProcess], tmp_path: Path
+) -> None:
     (tmp_path / "bad_value.yaml").write_text("/**:\n  ros__parameters:\n    matcher: magic\n")
     (tmp_path / "bad_syntax.yaml").write_text("this: [is: not yaml\n")
     processes = {
-        case: NodeProcess("stereo_node", f"/start_{i}", ros_env, tmp_path, [a.format(dir=tmp_path) for a in args])
+        case: start_node("stereo_node", f"/start_{i}", [a.format(dir=tmp_path) for a in args])
         for i, (case, (args, _)) in enumerate(BAD_START.items())
     }
     for case, process in processes.items():

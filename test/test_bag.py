@@ -6,7 +6,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from waiting import wait_until
 
 from stereo_depth.atomic_output import OutputError
 from stereo_depth.bag.export import read_ply
@@ -357,9 +357,8 @@ def test_ctrl_c_on_the_command_leaves_no_bag(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # pytest may run us with SIGINT ignored
     )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and process.poll() is None and not list((tmp_path / "ply").glob("*.ply")):
-        time.sleep(0.02)  # the first PLY means the output bag is being written
+    # the first PLY means the output bag is being written
+    wait_until(lambda: process.poll() is not None or any((tmp_path / "ply").glob("*.ply")), "the first PLY", 60.0)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130, err.decode()
@@ -550,5 +549,5 @@ def test_bag_tools_work_without_rclpy() -> None:
         "import sys; import stereo_depth.cli, stereo_depth.bag.process, stereo_depth.bag.make; "
         "stereo_depth.cli.build_parser(); print('rclpy' in sys.modules)"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert result.stdout.strip() == "False"

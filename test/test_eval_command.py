@@ -27,6 +27,7 @@ def test_eval_prints_table_writes_json_and_pictures(tmp_path: Path) -> None:
         capture_output=True,
         text=True,
         check=True,
+        timeout=300,
     )
     assert "mean (2 scenes, default)" in out.stdout
     report = json.loads((tmp_path / "r.json").read_text())
@@ -42,7 +43,10 @@ def test_eval_disparity_range_follows_calib_and_can_be_overridden(tmp_path: Path
     for extra in ([], ["--set", "disparity_range=16"]):
         path = tmp_path / f"{len(extra)}.json"
         subprocess.run(
-            [*CLI, "eval", str(SCENES / "artl"), "--json", str(path), *extra], check=True, capture_output=True
+            [*CLI, "eval", str(SCENES / "artl"), "--json", str(path), *extra],
+            check=True,
+            capture_output=True,
+            timeout=300,
         )
         runs[len(extra)] = json.loads(path.read_text())["mean"]
     # ArtL's disparities reach 55 px: a 16 px search finds almost none of them
@@ -51,6 +55,6 @@ def test_eval_disparity_range_follows_calib_and_can_be_overridden(tmp_path: Path
 
 def test_eval_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
     for args in (["eval", str(tmp_path / "missing")], ["eval", str(SCENES / "artl"), "--set", "P2=1"]):
-        out = subprocess.run([*CLI, *args], capture_output=True, text=True)
+        out = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
         assert out.returncode == 1
         assert out.stderr.startswith("ERROR: ") and out.stderr.count("\n") == 1, out.stderr

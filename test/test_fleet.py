@@ -15,11 +15,11 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from waiting import wait_until
 
 from stereo_depth.bag.process import ProcessOptions
 from stereo_depth.bag.recording import open_reader
@@ -125,10 +125,8 @@ def ray_head(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     with log.open("w") as sink:
         head = subprocess.Popen(command, env=env, stdout=sink, stderr=subprocess.STDOUT)
     try:
-        deadline = time.monotonic() + 60
-        while "block forever" not in log.read_text():
-            assert head.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.2)
+        wait_until(lambda: "block forever" in log.read_text() or head.poll() is not None, "the Ray head", 60.0, 0.2)
+        assert head.poll() is None, log.read_text()
         yield f"127.0.0.1:{port}"
     finally:
         head.send_signal(signal.SIGTERM)  # --block: the head stops every process it started
@@ -269,10 +267,11 @@ def test_local_workers_shard_and_ctrl_c_leaves_no_partial_output(
     command += [*workers, "--shard-seconds", "0.5", "--profile", "quality"]
     run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)  # environment: worker_settings
     assert run.stderr is not None
-    deadline = time.monotonic() + 60
-    while not any(p.name.startswith(".0") for p in (out / ".long.shards").glob("*")):  # a shard is being written
-        assert run.poll() is None and time.monotonic() < deadline
-        time.sleep(0.05)
+    shards = out / ".long.shards"
+    wait_until(
+        lambda: run.poll() is not None or any(p.name.startswith(".0") for p in shards.glob("*")), "a shard", 60.0
+    )
+    assert run.poll() is None, run.stderr.read()  # a shard is being written
     run.send_signal(sig)
     assert run.wait(timeout=60) == 130, run.stderr.read()
     assert "ERROR: interrupted" in run.stderr.read()
@@ -327,8 +326,7 @@ def test_a_task_whose_stop_file_appears_stops_and_leaves_no_output(tmp_path: Pat
     else:  # once the task's hidden output folder holds a part written
 
         def stop_when_writing() -> None:
-            while not any(out.glob(".*/*")):
-                time.sleep(0.01)
+            wait_until(lambda: any(out.glob(".*/*")), "a part of the task's output", 120.0, 0.01)
             stop.touch()
 
         threading.Thread(target=stop_when_writing, daemon=True).start()

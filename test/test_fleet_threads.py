@@ -15,10 +15,10 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+from waiting import wait_until
 
 from stereo_depth.core.threads import available_cores
 
@@ -76,10 +76,16 @@ def test_two_workers_on_two_cores_each_work_on_one_thread(tmp_path: Path) -> Non
     command += ["--report", str(tmp_path / "report.json")]
     run = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     seen: dict[int, dict[int, float]] = {}  # worker pid -> thread -> CPU seconds (last reading)
-    while run.poll() is None:
+
+    def ended() -> bool:
         for pid in workers(run.pid):
             seen.setdefault(pid, {}).update(thread_cpu_s(pid))
-        time.sleep(0.1)
+        return run.poll() is not None
+
+    try:
+        wait_until(ended, "the fleet run to end", 300.0, 0.1)
+    finally:
+        run.kill()  # no-op once it ended
     output = run.stdout.read().decode() if run.stdout else ""
     assert run.returncode == 0, output
     reported = [bag["threads"] for bag in json.loads((tmp_path / "report.json").read_text())["bags"]]

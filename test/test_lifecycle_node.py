@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -13,12 +14,15 @@ from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition, TransitionEvent
 from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.srv import ListParameters
+from rclpy.qos import ReliabilityPolicy
 from ros_helpers import Collector, NodeProcess, RosHarness, stop_all, wait_until
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from test_nodes import Pair, StereoInput, euroc_pair
+from test_qos_overrides import publisher_reliability, subscription_reliability
 
 from stereo_depth.core.params import StereoParams
+from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml
 from stereo_depth.nodes.stereo_node import OUTPUT_TYPES, StereoNode
 
 NODE = "stereo_lifecycle_node"
@@ -72,8 +76,11 @@ def pair() -> Pair:
     return euroc_pair()
 
 
-def start(ros: RosHarness, env: dict[str, str], logs: Path, namespace: str, *args: str) -> Managed:
-    return Managed(ros, NodeProcess(NODE, namespace, env, logs, args))
+@pytest.fixture
+def start(ros: RosHarness, start_node: Callable[..., NodeProcess]) -> Callable[..., Managed]:
+    """Starts a stereo_lifecycle_node under `namespace` with `args` (stopped at the test's end, whatever
+    happened) and waits for its lifecycle services."""
+    return lambda namespace, *args: Managed(ros, start_node(NODE, namespace, args))
 
 
 def quiet(collector: Collector, seconds: float = QUIET_S) -> bool:
@@ -83,8 +90,11 @@ def quiet(collector: Collector, seconds: float = QUIET_S) -> bool:
     return len(collector.messages) == before
 
 
-def frame_through(managed: Managed, inputs: StereoInput, pair: Pair, disparity: Collector, points: Collector) -> int:
-    inputs.wait_matched()
+def frame_through(
+    managed: Managed, inputs: StereoInput, pair: Pair, disparity: Collector, points: Collector, infos: int = 1
+) -> int:
+    """One frame in, its disparity and cloud out (`infos`: 0 when camera_info comes from files)."""
+    inputs.wait_matched(infos=infos)
     stamp = next(_stamps)
     inputs.publish(pair, stamp)
     disparity.wait_stamp(stamp, timeout=60.0)
@@ -94,9 +104,9 @@ def frame_through(managed: Managed, inputs: StereoInput, pair: Pair, disparity: 
 
 @pytest.mark.parametrize("executor", ["standard", "events"])
 def test_full_cycle_publishes_only_while_active_and_releases_on_deactivate_and_cleanup(
-    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair, executor: str
+    ros: RosHarness, start: Callable[..., Managed], pair: Pair, executor: str
 ) -> None:
-    managed = start(ros, ros_env, tmp_path, f"/cycle_{executor}", "-p", f"executor:={executor}")
+    managed = start(f"/cycle_{executor}", "-p", f"executor:={executor}")
     ns = managed.ns
     disparity = ros.collector(DisparityImage, f"{ns}/disparity")
     points = ros.collector(PointCloud2, f"{ns}/points2")
@@ -162,10 +172,10 @@ def test_full_cycle_publishes_only_while_active_and_releases_on_deactivate_and_c
 
 
 def test_a_failed_configure_goes_through_errorprocessing_back_to_unconfigured(
-    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
+    start: Callable[..., Managed], tmp_path: Path
 ) -> None:
     missing = tmp_path / "missing.yaml"
-    managed = start(ros, ros_env, tmp_path, "/failing", "-p", f"left_camera_info_url:=file://{missing}")
+    managed = start("/failing", "-p", f"left_camera_info_url:=file://{missing}")
     assert not managed.change(Transition.TRANSITION_CONFIGURE)
     assert managed.state() == "unconfigured"
     wait_until(lambda: len(managed.events) >= 3, "transition events")
@@ -182,13 +192,75 @@ def test_a_failed_configure_goes_through_errorprocessing_back_to_unconfigured(
     stop_all([managed.process])
 
 
+def test_configure_succeeds_once_the_cause_of_a_failed_one_is_fixed_and_frames_flow(
+    ros: RosHarness, start: Callable[..., Managed], tmp_path: Path, pair: Pair
+) -> None:
+    """What the errorprocessing log line promises: after a failed configure the node is unconfigured and
+    whole, and configures once the cause is fixed. The camera_info URLs are start-up parameters (read-only),
+    so the fix is the file the parameter names, as a user would fix it, not a new URL."""
+    left, right = tmp_path / "left.yaml", tmp_path / "right.yaml"
+    left.write_text("image_width: [not, a calibration\n")
+    right.write_text(camera_info_to_yaml(pair.right_info, "right"))
+    urls = ("-p", f"left_camera_info_url:=file://{left}", "-p", f"right_camera_info_url:=file://{right}")
+    managed = start("/fixed", *urls)
+    assert not managed.change(Transition.TRANSITION_CONFIGURE)
+    assert managed.state() == "unconfigured"
+    assert "configure failed: left_camera_info_url" in managed.process.output(), managed.process.output()
+
+    left.write_text(camera_info_to_yaml(pair.left_info, "left"))
+    assert managed.change(Transition.TRANSITION_CONFIGURE), managed.process.output()
+    assert managed.change(Transition.TRANSITION_ACTIVATE)
+    assert managed.state() == "active"
+    disparity = ros.collector(DisparityImage, f"{managed.ns}/disparity")
+    points = ros.collector(PointCloud2, f"{managed.ns}/points2")
+    frame_through(managed, StereoInput(ros, managed.ns), pair, disparity, points, infos=0)
+
+
+def test_qos_overrides_hold_after_deactivate_and_activate(ros: RosHarness, start: Callable[..., Managed]) -> None:
+    """Deactivate destroys the inputs and activate creates them anew: each time they take the overrides
+    given at start-up again (left/image_raw best effort though its camera offers reliable: the override
+    beats the adaptive rule), the outputs keep theirs, and right/image_raw, not overridden, still follows
+    its best-effort camera."""
+    ns = "/qos_cycle"
+    managed = start(
+        ns,
+        "-p",
+        f"qos_overrides.{ns}/points2.publisher.reliability:=best_effort",
+        "-p",
+        f"qos_overrides.{ns}/left/image_raw.subscription.reliability:=best_effort",
+    )
+    cameras = [
+        ros.publisher(Image, f"{ns}/left/image_raw", ReliabilityPolicy.RELIABLE),
+        ros.publisher(Image, f"{ns}/right/image_raw", ReliabilityPolicy.BEST_EFFORT),
+    ]
+    best_effort, reliable = ReliabilityPolicy.BEST_EFFORT, ReliabilityPolicy.RELIABLE
+    expected = {
+        f"{ns}/points2": (publisher_reliability, best_effort),
+        f"{ns}/depth": (publisher_reliability, reliable),
+        f"{ns}/left/image_raw": (subscription_reliability, best_effort),
+        f"{ns}/right/image_raw": (subscription_reliability, best_effort),
+    }
+    try:
+        assert managed.change(Transition.TRANSITION_CONFIGURE)
+        for activation in ("first", "second"):
+            assert managed.change(Transition.TRANSITION_ACTIVATE)
+            for topic, (reliability, want) in expected.items():
+                wait_until(
+                    lambda t=topic, r=reliability, w=want: r(ros, t, NODE) == w,
+                    f"{topic} {want.name.lower()} after the {activation} activation",
+                )
+            assert managed.change(Transition.TRANSITION_DEACTIVATE)
+            managed.wait_inputs(0)
+    finally:
+        for camera in cameras:
+            ros.node.destroy_publisher(camera)
+
+
 def test_sigint_ends_the_node_cleanly_from_every_state(
-    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair
+    ros: RosHarness, start: Callable[..., Managed], pair: Pair
 ) -> None:
     """Unconfigured, inactive, and active while frames flow: exit code 0, no traceback (stop_all)."""
-    nodes = {
-        label: start(ros, ros_env, tmp_path, f"/sigint_{label}") for label in ("unconfigured", "inactive", "active")
-    }
+    nodes = {label: start(f"/sigint_{label}") for label in ("unconfigured", "inactive", "active")}
     assert nodes["inactive"].change(Transition.TRANSITION_CONFIGURE)
     active = nodes["active"]
     assert active.change(Transition.TRANSITION_CONFIGURE) and active.change(Transition.TRANSITION_ACTIVATE)
@@ -203,10 +275,10 @@ def test_sigint_ends_the_node_cleanly_from_every_state(
 
 
 def test_shutdown_from_inactive_and_from_active_releases_everything(
-    ros: RosHarness, ros_env: dict[str, str], tmp_path: Path, pair: Pair
+    ros: RosHarness, start: Callable[..., Managed], pair: Pair
 ) -> None:
-    inactive = start(ros, ros_env, tmp_path, "/shutdown_inactive")
-    active = start(ros, ros_env, tmp_path, "/shutdown_active")
+    inactive = start("/shutdown_inactive")
+    active = start("/shutdown_active")
     assert inactive.change(Transition.TRANSITION_CONFIGURE)
     assert active.change(Transition.TRANSITION_CONFIGURE) and active.change(Transition.TRANSITION_ACTIVATE)
     disparity = ros.collector(DisparityImage, f"{active.ns}/disparity")

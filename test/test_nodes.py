@@ -10,7 +10,7 @@ import dataclasses
 import itertools
 import signal
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -564,7 +564,7 @@ def _catches(pid: int, sig: signal.Signals) -> bool:
 @pytest.mark.parametrize("as_module", [False, True], ids=["console script", "python -m"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_at_any_moment_of_start_up_ends_the_node_quietly(
-    ros_env: dict[str, str], tmp_path: Path, sig: signal.Signals, as_module: bool
+    start_node: Callable[..., NodeProcess], sig: signal.Signals, as_module: bool
 ) -> None:
     """Ctrl-C (or a launch file's SIGTERM) right after the console script (or `python -m`) put its handlers
     in, while the node's modules are still being imported, ends it with exit code 0 before it prints
@@ -572,7 +572,7 @@ def test_a_signal_at_any_moment_of_start_up_ends_the_node_quietly(
     (an exception raised inside an import or a callback, where it is swallowed and the node runs on)."""
     for delay in (0.0, 0.3, 0.8):
         namespace = f"/early_{sig.name.lower()}_{delay * 10:.0f}_{'m' if as_module else 's'}"
-        process = NodeProcess("stereo_node", namespace, ros_env, tmp_path, as_module=as_module)
+        process = start_node("stereo_node", namespace, as_module=as_module)
         child = process.process
         wait_until(lambda c=child: c.poll() is not None or _catches(c.pid, signal.SIGTERM), "handlers", 60.0, 0.001)
         if delay == 0.0 and child.poll() is None:  # the handlers came before the imports: no rclpy yet

@@ -405,7 +405,7 @@ def test_benches_that_talk_dds_take_a_free_domain_id_as_test_runs_do(tmp_path: P
     def bench_domain(extra_env: dict[str, str], then: str = "") -> subprocess.CompletedProcess[str]:
         code = f"import domain_lock; print(domain_lock.isolate_on_this_host()); {then}"
         command = [sys.executable, "-c", code]
-        return subprocess.run(command, cwd=BENCH, env=env | extra_env, capture_output=True, text=True)
+        return subprocess.run(command, cwd=BENCH, env=env | extra_env, capture_output=True, text=True, timeout=60)
 
     claimed = bench_domain({}, then="domain_lock.claim_domain_id()")  # a second claim: 42 is held by now
     assert claimed.stdout.split() == ["42"] and "all 100 ROS domain ids are held" in claimed.stderr
@@ -447,7 +447,7 @@ def test_a_cloud_built_in_its_serialized_bytes_arrives_as_that_cloud(
         executor.spin_once(timeout_sec=0.05)
     for _ in range(20):  # anything the inactive publisher had sent would be here by now
         executor.spin_once(timeout_sec=0.05)
-    assert received == [expected]
+    assert received == [expected], "the cloud published while active, and only that one"
     executor.shutdown()
     node.destroy_node()
 

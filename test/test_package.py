@@ -38,6 +38,7 @@ def install_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
         check=True,
         capture_output=True,
         env={**os.environ, "PYTHONWARNINGS": "ignore"},
+        timeout=600,
     )
     return work / "install" / "stereo_depth"
 
@@ -71,7 +72,8 @@ def test_sourcing_the_workspace_exports_the_large_message_profile_unless_one_is_
         env[exported] = "/my/profile.xml"
     show = " && ".join(f'echo "{name}=${{{name}:-}}"' for name in VARIABLES)
     script = f'. "{install_tree.parent / "local_setup.sh"}" && {show}'
-    shown = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True).stdout.split()
+    run = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True, timeout=60)
+    shown = run.stdout.split()
     ours = install_tree / "share" / "stereo_depth" / "config" / "fastdds_large_images.xml"
     if exported:
         assert shown == [f"{name}={env.get(name, '')}" for name in VARIABLES]

@@ -9,8 +9,7 @@ the graph API, as `ros2 topic info -v` shows it.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from pathlib import Path
+from collections.abc import Callable, Iterator
 
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -195,10 +194,9 @@ def test_a_publisher_of_another_type_on_an_input_is_warned_about_once_with_both_
 
 
 def test_an_override_value_rclpy_cannot_apply_stops_the_node_with_the_reason(
-    ros_env: dict[str, str], tmp_path: Path
+    start_node: Callable[..., NodeProcess],
 ) -> None:
-    args = ["-p", f"{OVERRIDES}./bad/points2.publisher.reliability:=sometimes"]
-    process = NodeProcess("stereo_node", "/bad", ros_env, tmp_path, args)
+    process = start_node("stereo_node", "/bad", ["-p", f"{OVERRIDES}./bad/points2.publisher.reliability:=sometimes"])
     code = process.process.wait(timeout=120)
     output = process.output()
     assert code == 2, output

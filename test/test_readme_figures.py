@@ -62,7 +62,7 @@ def test_every_speed_table_names_its_machine_and_carries_a_ratio() -> None:
 def test_a_bench_prints_its_readme_table_in_markdown() -> None:
     """compressed_input's markdown header is the README's, and every row has a ratio against raw input."""
     command = [sys.executable, str(BENCH / "compressed_input.py"), "--repeat", "1", "--markdown"]
-    printed = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    printed = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT, timeout=300).stdout
     rows = [line for line in printed.splitlines() if line.startswith("|")]
     header, separator, *body = rows
     assert f"{header}\n{separator}\n" in README

@@ -63,7 +63,8 @@ def test_a_helper_runs_its_callers_job_on_another_core() -> None:
     for core in sorted(os.sched_getaffinity(os.getpid()))[:2]:
         thread = threading.Thread(target=caller, args=(core,))
         thread.start()
-        thread.join()
+        thread.join(timeout=60)
+        assert not thread.is_alive(), f"the caller on core {core} still waits for its helper's job"
     assert len(seen) == 6
     for caller_core, helper_core, helper_cores in seen:
         assert helper_core != caller_core

@@ -126,7 +126,8 @@ class StereoParams:
                     f"P2 {self.P2:g} is above what census_sgm can honour with correlation_window_size {window}: "
                     f"at most {p2_limit} ({CENSUS_P2_PER_BIT} x {CENSUS_BITS} census bits x window area); "
                     "its 8-bit path costs would keep under 4 levels of matching cost beside such a P2",
-                )
+                ),
+                self._uniqueness_limit(),
             ]
         fixed_lo, fixed_hi = (self.min_disparity - 1) * 16, (self.min_disparity + self.disparity_range) * 16
         checks = [
@@ -137,6 +138,17 @@ class StereoParams:
                 "keep min_disparity - 1 >= -2048 and min_disparity + disparity_range <= 2047",
             )
         ]
+        if self.matcher == "bm":
+            texture_limit = window * window * self.prefilter_cap
+            checks.append(
+                (
+                    self.texture_threshold <= texture_limit,
+                    f"texture_threshold {self.texture_threshold} is above what bm's window can reach: at most "
+                    f"{texture_limit} (correlation_window_size {window} squared x prefilter_cap "
+                    f"{self.prefilter_cap}, each prefiltered pixel at most prefilter_cap from its middle), so every "
+                    "pixel would be invalid",
+                )
+            )
         if self.matcher == "sgbm":
             pixel_cost = 2 * self.prefilter_cap + 64  # Birchfield-Tomasi on the prefiltered + the raw image
             worst = pixel_cost * window * window + round(self.P2)
@@ -147,13 +159,19 @@ class StereoParams:
                     f"prefilter_cap {self.prefilter_cap}) plus P2 {self.P2:g} reaches {worst} > {SGBM_COST_MAX}; "
                     "use a smaller window, P2 or prefilter_cap",
                 ),
-                (
-                    self.uniqueness_ratio < 100,
-                    f"uniqueness_ratio {self.uniqueness_ratio:g} must be below 100 for sgbm "
-                    "(100 rejects every pixel, and SGBM_3WAY stops the process with a floating-point exception)",
-                ),
+                self._uniqueness_limit(),
             ]
         return checks
+
+    def _uniqueness_limit(self) -> tuple[bool, str]:
+        """The semi-global matchers keep a pixel whose best cost is below (100 - ratio)% of every other
+        disparity's (bm's ratio is a margin above the best instead, and 100 is a setting it honours)."""
+        crash = ", and SGBM_3WAY stops the process with a floating-point exception" if self.matcher == "sgbm" else ""
+        return (
+            self.uniqueness_ratio < 100,
+            f"uniqueness_ratio {self.uniqueness_ratio:g} must be below 100 for {self.matcher} (100 rejects every "
+            f"pixel{crash})",
+        )
 
 
 # stereo_image_proc's defaults exactly (Jazzy disparity_node), for drop-in comparisons.
