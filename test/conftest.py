@@ -18,7 +18,7 @@ from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import load_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from domain_lock import claim_domain_id  # the benches lock their domain ids alike
+from lib.domain_lock import claim_domain_id  # the benches lock their domain ids alike
 
 DATA = Path(__file__).parent / "data"
 SCENES = DATA / "scenes"
