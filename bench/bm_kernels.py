@@ -75,8 +75,7 @@ def child(disparity_range: int) -> None:
 
 def main() -> None:
     args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 64, child)
-    day = time.strftime("%Y-%m-%d")
-    print(f"BM 640x480 (anchor frames), {args.disparity_range} disparities, window 15, {args.repeat} frames, {day}")
+    print(f"BM 640x480 (anchor frames), {args.disparity_range} disparities, window 15, {args.repeat} frames")
     columns = (*LEVEL_COLUMNS, *(f"{w} ms" for w in WAYS), "ours / OpenCV, 1 thread")
     if args.markdown:
         print(table_header((*columns, "ours / OpenCV, halves")))

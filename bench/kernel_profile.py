@@ -31,7 +31,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -137,7 +136,7 @@ def main() -> None:
     runs = {paths: profile(paths, args.frames) for paths in args.paths}
     names = [name for name, _ in KINDS] + ["other code"]
     columns = ("part of the kernel", *(f"{paths} paths" for paths in args.paths))
-    print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames; {time.strftime('%Y-%m-%d')}")
+    print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames")
     print(table_header(columns) if args.markdown else "  ".join(columns))
     for name in names:
         row = (name, *(f"{100 * runs[p].get(name, 0.0):.0f}%" for p in args.paths))

@@ -59,8 +59,7 @@ def main() -> None:
     args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 128, child)
     names = [name for name, _, _ in PROFILES]
     columns = (*LEVEL_COLUMNS, *(f"{n} ms" for n in names), *(f"{n} / default" for n in names[1:]))
-    day = time.strftime("%Y-%m-%d")
-    print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved; {day}")
+    print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved")
     if args.markdown:
         print(table_header(columns))
     for level, frames in runs.items():

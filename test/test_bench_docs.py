@@ -93,6 +93,10 @@ def test_the_readme_table_is_rewritten_between_its_markers_only() -> None:
     assert before == "# r\n\nbefore\n\n" and after == "\n\nafter\n"
     assert "an old table" not in inside and MEASURED_ON in inside
     assert "| 1.11x | [Per frame" in inside  # the default row's cell, not the first row's
+    anchor = "| case | | latency vs C++ |\n|---|---|---|\n| BM 640x480, disparity only | C++ | 1.00x (baseline) |\n"
+    anchor += "| | stereo_node | 0.74x |"
+    table = performance_docs.glance_table([section("against-the-c-chain", anchor)], MEASURED_ON)
+    assert "disparity only | 0.74x |" in table  # our row below the C++ baseline's
     assert "Left out of this run" in inside and "C++ stereo_image_proc" in inside
     with pytest.raises(ValueError, match="markers"):
         performance_docs.with_glance("# a README without the markers\n", table)
