@@ -64,11 +64,12 @@ class Run:
     work: Path
     notes: list[str] = field(default_factory=list)  # rows left out of the question being measured
 
-    def bench(self, script: str, *arguments: str, quick: tuple[str, ...] = ()) -> bool:
-        """A bench with these arguments (--quick: with `quick` added) and --markdown; its output without its
-        machine header (the page prints the machine on each section's line)."""
-        command = [sys.executable, str(BENCH / script), *arguments, *(quick if self.args.quick else ()), "--markdown"]
-        return forward_markdown(command)
+    def bench(self, script: str, *arguments: str, full: tuple[str, ...] = (), quick: tuple[str, ...] = ()) -> bool:
+        """A bench with these arguments, then `full` (repeats and frames for the page: a run of minutes on a
+        2-core machine) or, with --quick, `quick`, and --markdown; its output without its machine header
+        (the page prints the machine on each section's line)."""
+        sizes = quick if self.args.quick else full
+        return forward_markdown([sys.executable, str(BENCH / script), *arguments, *sizes, "--markdown"])
 
     def command(self, *arguments: str) -> bool:
         """A command whose output is progress, not figures (stderr)."""
@@ -141,34 +142,34 @@ def input_pairing(run: Run) -> bool:
 
 
 def pipeline_stages(run: Run) -> bool:
-    return run.bench("pipeline_stages.py", quick=("--repeat", "2"))
+    return run.bench("pipeline_stages.py", full=("--repeat", "8"), quick=("--repeat", "2"))
 
 
 def census_simd(run: Run) -> bool:
-    return run.bench("simd_match_ratio.py", quick=("--repeat", "2"))
+    return run.bench("simd_match_ratio.py", full=("--repeat", "7"), quick=("--repeat", "2"))
 
 
 def bm_simd(run: Run) -> bool:
-    return run.bench("bm_kernels.py", quick=("--repeat", "2"))
+    return run.bench("bm_kernels.py", full=("--repeat", "9"), quick=("--repeat", "2"))
 
 
 def kernel_profile(run: Run) -> bool:
     if not (shutil.which("perf") and shutil.which("objdump")):
         run.notes.append("Left out: needs Linux perf and objdump on this machine.")
         return True
-    return run.bench("kernel_profile.py", quick=("--frames", "2"))
+    return run.bench("kernel_profile.py", full=("--frames", "8"), quick=("--frames", "2"))
 
 
 def clouds(run: Run) -> bool:
-    return run.bench("cloud_outputs.py", quick=("--repeat", "2"))
+    return run.bench("cloud_outputs.py", full=("--repeat", "10"), quick=("--repeat", "2"))
 
 
 def compressed_depth(run: Run) -> bool:
-    return run.bench("compressed_depth.py", quick=("--repeat", "2"))
+    return run.bench("compressed_depth.py", full=("--repeat", "4"), quick=("--repeat", "2"))
 
 
 def compressed_input(run: Run) -> bool:
-    return run.bench("compressed_input.py", quick=("--repeat", "2"))
+    return run.bench("compressed_input.py", full=("--repeat", "10"), quick=("--repeat", "2"))
 
 
 def temporal(run: Run) -> bool:
@@ -177,16 +178,17 @@ def temporal(run: Run) -> bool:
         run.notes.append("Left out: the rows of " + ", ".join(TEMPORAL_DATA_SCENES) + " (needs `--data DIR`).")
     else:
         scenes += [str(run.args.data / name) for name in TEMPORAL_DATA_SCENES if (run.args.data / name).is_dir()]
-    return run.bench("temporal.py", "--scenes", *scenes, quick=("--frames", "12", "--warm-up", "4"))
+    sizes = {"full": ("--frames", "20", "--warm-up", "6"), "quick": ("--frames", "12", "--warm-up", "4")}
+    return run.bench("temporal.py", "--scenes", *scenes, **sizes)
 
 
 def fleet(run: Run) -> bool:
-    return run.bench("fleet.py", quick=("--frames", "20"))
+    return run.bench("fleet.py", full=("--frames", "60"), quick=("--frames", "20"))
 
 
 def offline(run: Run) -> bool:
-    arguments = ("--profiles", "stereo_image_proc", "--sizes", "640x480", "--frames", "100")
-    return run.bench("offline_process.py", *arguments, quick=("--frames", "20", "--repeats", "1"))
+    arguments = ("--profiles", "stereo_image_proc", "--sizes", "640x480", "--repeats", "1")
+    return run.bench("offline_process.py", *arguments, full=("--frames", "60"), quick=("--frames", "20"))
 
 
 def profiles_bundled(run: Run) -> bool:
@@ -194,7 +196,7 @@ def profiles_bundled(run: Run) -> bool:
 
 
 def profiles_data(run: Run) -> bool:
-    return run.bench("accuracy.py", "profiles", *run.data_scenes(), quick=("--repeat", "1"))
+    return run.bench("accuracy.py", "profiles", *run.data_scenes(), full=("--repeat", "2"), quick=("--repeat", "1"))
 
 
 def confidence(run: Run) -> bool:
@@ -246,7 +248,7 @@ QUESTIONS = (
         input_pairing,
         (
             Pick(
-                "Disparity latency against bare rclpy (camera_info first, no profile exported)",
+                "Latency against bare rclpy, disparity / points2 (camera_info first, no profile exported)",
                 "camera_info first (left",
                 "vs bare",
             ),
@@ -299,7 +301,7 @@ QUESTIONS = (
     Question(
         "offline-processing",
         "Offline: `stereo-depth process` against a bare loop",
-        "bench/offline_process.py --profiles stereo_image_proc --sizes 640x480 --frames 100",
+        "bench/offline_process.py --profiles stereo_image_proc --sizes 640x480",
         offline,
         (
             Pick(
@@ -424,6 +426,9 @@ def docs_page(sections: list[Section], machine: str, measured_on: str, args: arg
         '- `make bench-docs ARGS="--questions SLUG ..."`: some sections only (their slugs are the anchors below).',
         "- One bench by itself: `flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/NAME.py --help`; "
         "[bench/README.md](../bench/README.md) lists them.",
+        "- A long run (memory, latency percentiles, drops): `.venv/bin/python bench/soak.py --seconds 600`.",
+        "- Experiments whose answer is built into the code, with the figure that decided each: "
+        "[design/decisions.md](design/decisions.md).",
         "",
         "This run's machine:",
         "",
@@ -441,7 +446,7 @@ def docs_page(sections: list[Section], machine: str, measured_on: str, args: arg
             parts.append(f"Left out of this run: {section.left_out}.")
             continue
         parts += [f"{measured_on} (`.venv/bin/python {section.question.command}`)", "", section.text]
-    return "\n".join(parts).rstrip() + "\n"
+    return re.sub(r"\n{3,}", "\n\n", "\n".join(parts)).rstrip() + "\n"  # a caption's own blank line
 
 
 def glance_table(sections: list[Section], measured_on: str) -> str:
