@@ -10,7 +10,7 @@ PYTHON312 := $(shell for c in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 
-.PHONY: venv compile compile-min test test-min demo lint lock bench-readme clean
+.PHONY: venv compile compile-min test test-min demo lint lock bench-docs clean
 
 venv: $(STAMP)
 
@@ -86,12 +86,12 @@ lint: venv
 	$(VENV)/bin/mypy stereo_depth
 	$(VENV)/bin/mypy --allow-untyped-calls test bench tools
 
-# Every speed figure the README quotes, remeasured under the CPU lock and printed in the README's own
-# tables (markdown on stdout, the benches' progress on stderr); about 15 minutes. ARGS="--quick" checks that
-# it works (11 minutes on a loaded 2-core machine); ARGS="--simd avx2" or "--simd 128" measures another
-# SIMD level on this machine.
-bench-readme: venv
-	$(VENV)/bin/python bench/readme_figures.py $(ARGS)
+# docs/performance.md and the README's performance-at-a-glance table, remeasured in one run under the CPU
+# lock (bench/performance_docs.py; progress on stderr). ARGS="--quick" checks that it works; ARGS="--anchor DIR
+# --data DIR" adds the rows that need the ROS 1 C++ anchor and the Middlebury/KITTI scenes (left out without
+# them); ARGS="--simd avx2" or "--simd 128" measures another SIMD level on this machine.
+bench-docs: compile
+	$(VENV)/bin/python bench/performance_docs.py $(ARGS)
 
 clean:
 	rm -rf $(VENV) $(MIN_VENV) build install log out

@@ -1,10 +1,10 @@
 """Our BM kernels against OpenCV's StereoBM (the same int16 disparity, core/block_matching.py) at three SIMD
 levels of this machine, interleaved.
 
-One child process per level (native, AVX2, 128-bit: readme_figures.SIMD_ENV, each with its own numba
-cache), each serving frames of the anchor's 640x480 stream (bench/anchor_frames.py) with
+One child process per level (native, AVX2, 128-bit: lib/simd.py SIMD_ENV, each with its own numba
+cache), each serving frames of the anchor's 640x480 stream (bench/lib/anchor_frames.py) with
 stereo_image_proc's parameters (BM, window 15) and `--disparity-range` disparities; the parent asks the
-children in turn (bench/interleaved.py). Per frame and level, each way after a 50 ms pause:
+children in turn (bench/lib/interleaved.py). Per frame and level, each way after a 50 ms pause:
   * the whole image on one thread: OpenCV's StereoBM (its stripes on one OpenCV thread), and ours;
   * stereo_node's match: both halves at once on two cores with their speckles removed (core/matching.py
     `Halves`), with OpenCV's matcher on each half (`OpenCVBands`) and with ours (`BlockMatcher`).
@@ -25,10 +25,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from anchor_frames import frames
-from interleaved import IDLE_S
-from markdown_table import table_header, table_row, times
-from simd_levels import LEVEL_COLUMNS, level_cells, run_levels, serve_level
+from lib.anchor_frames import frames
+from lib.interleaved import IDLE_S
+from lib.simd import LEVEL_COLUMNS, level_cells, run_levels, serve_level
+from lib.table import table_header, table_row, times
 
 WAYS = ("OpenCV, 1 thread", "ours, 1 thread", "OpenCV, halves", "ours, halves")
 
@@ -75,8 +75,7 @@ def child(disparity_range: int) -> None:
 
 def main() -> None:
     args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 64, child)
-    day = time.strftime("%Y-%m-%d")
-    print(f"BM 640x480 (anchor frames), {args.disparity_range} disparities, window 15, {args.repeat} frames, {day}")
+    print(f"BM 640x480 (anchor frames), {args.disparity_range} disparities, window 15, {args.repeat} frames")
     columns = (*LEVEL_COLUMNS, *(f"{w} ms" for w in WAYS), "ours / OpenCV, 1 thread")
     if args.markdown:
         print(table_header((*columns, "ours / OpenCV, halves")))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import cv2
 import rclpy
-from domain_lock import isolate_on_this_host
+from lib.domain_lock import isolate_on_this_host
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -32,7 +32,7 @@ from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header, table_row, times
+from lib.table import parse_bench_arguments, table_header, table_row, times
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 LAYOUTS = {

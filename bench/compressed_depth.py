@@ -38,7 +38,7 @@ from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header
+from lib.table import parse_bench_arguments, table_header
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 

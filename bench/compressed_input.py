@@ -22,7 +22,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from markdown_table import parse_bench_arguments, table_header, table_row, times
+from lib.table import parse_bench_arguments, table_header, table_row, times
 from pipeline_stages import scaled_info
 
 from stereo_depth.core.camera import StereoCamera

@@ -1,8 +1,8 @@
 """End to end over DDS: replayed frames -> stereo_node -> a monitor, each in its own process.
 
-Measures what the ROS 1 stereo_image_proc anchor (../shared/anchors/ros1_stereo_image_proc) measures,
+Measures what the ROS 1 stereo_image_proc anchor (a folder with its run.sh, passed as --anchor DIR) measures,
 the same way, on the same kind of frames:
-  * a publisher process replays the anchor's synthetic 640x480 / 1280x720 mono8 stream (bench/anchor_frames.py,
+  * a publisher process replays the anchor's synthetic 640x480 / 1280x720 mono8 stream (bench/lib/anchor_frames.py,
     same recipe and seed; bgr8 copies for the colour cases) at a set rate: left/right image_raw + camera_info,
     reliable, pre-serialized, in the case's order within a frame (a driver may send camera_info first), with
     the right camera some frames late (skew) or frames sent back to back (bursts);
@@ -19,7 +19,7 @@ A few warm-up frames (not counted) go first, so one-off start-up work (imports, 
 first allocation) is not billed to the stream; numba's kernels are compiled before the first case
 (`stereo-depth compile`). Every process it starts is stopped by PID.
 
-`--anchor` runs the C++ anchor (its run.sh: ROS 1 stereo_image_proc, rosbag play, a roscpp monitor; it
+`--anchor DIR` runs the C++ anchor (DIR/run.sh: ROS 1 stereo_image_proc, rosbag play, a roscpp monitor; it
 installs Debian's ROS 1 packages on first use) once after each of our runs of a case it has, so the two
 interleave on a shared machine (ours, anchor, ours, anchor), and prints both side by side as medians.
 The anchor talks TCPROS: the Fast DDS profile does not apply to it, so its row stands beside both of ours.
@@ -34,7 +34,7 @@ stereo_depth/ros/transport.py).
     .venv/bin/python bench/e2e_dds.py --repeats 3 --cases bm_vga_30 sgbm_vga_30 bm_720p_30
     .venv/bin/python bench/e2e_dds.py --timeline --cases bm_vga_30_disparity_only   # where the latency goes,
         # and the share of frames DDS repaired an input of on its way to the node or to the monitor
-    .venv/bin/python bench/e2e_dds.py --anchor --repeats 3 --profiles none all \
+    .venv/bin/python bench/e2e_dds.py --anchor DIR --repeats 3 --profiles none all \
         --cases bm_vga_30 bm_vga_30_disparity_only     # the C++ chain interleaved with ours
 """
 
@@ -56,7 +56,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from domain_lock import isolate_on_this_host
+from lib.domain_lock import isolate_on_this_host
 
 from stereo_depth.machine import print_machine
 from stereo_depth.ros.transport import PROFILE_VARIABLES
@@ -104,7 +104,7 @@ CASES = {
         Case("sgbm_vga_30_16b", 640, 480, 30.0, (*ANCHOR, "stereo_algorithm:=1", *SAME_CLOUD)),
         Case("bm_720p_30", 1280, 720, 30.0, ANCHOR),
         Case("bm_720p_30_16b", 1280, 720, 30.0, (*ANCHOR, *SAME_CLOUD)),
-        # input pairing (issue 15): the order and timing of the four topics must not matter
+        # input pairing: the order and timing of the four topics must not matter
         Case("bm_vga_30_info_first", 640, 480, 30.0, ANCHOR, order="1302"),
         Case("bm_vga_30_bgr8_info_first", 640, 480, 30.0, ANCHOR, order="1302", color=True),
         Case("bm_vga_30_bgr8", 640, 480, 30.0, ANCHOR, color=True),
@@ -135,13 +135,6 @@ ANCHOR_NAMES = {  # the anchor's case names, for the side-by-side table
 }
 
 
-ANCHOR_RUN = Path("shared/anchors/ros1_stereo_image_proc/run.sh")  # under a folder above this repository
-
-
-def find_anchor() -> Path | None:
-    return next((p / ANCHOR_RUN for p in REPO.parents if (p / ANCHOR_RUN).is_file()), None)
-
-
 def machine_line() -> str:
     """CPU model, widest SIMD level its flags offer, cores: what every figure here depends on."""
     info = Path("/proc/cpuinfo").read_text()
@@ -152,7 +145,7 @@ def machine_line() -> str:
     return f"CPU {model}, SIMD {simd}, {os.cpu_count()} cores"
 
 
-def run_anchor(run_sh: Path, name: str, args: argparse.Namespace, workdir: Path) -> dict[str, Any] | None:
+def run_anchor(folder: Path, name: str, args: argparse.Namespace, workdir: Path) -> dict[str, Any] | None:
     """One run of one anchor case (run.sh with REPEATS=1); its summary figures, None if it failed."""
     env = dict(os.environ, WORK=str(args.anchor_work), REPEATS="1", FRAMES=str(args.frames))
     env.update(CASES=name.replace(" ", "_"), HD="1" if "hd720" in name else "0")
@@ -160,7 +153,7 @@ def run_anchor(run_sh: Path, name: str, args: argparse.Namespace, workdir: Path)
     env["SKIP_INSTALL"] = "1" if (args.anchor_work / "sip_monitor").exists() else "0"
     log = workdir / f"anchor.{name.replace(' ', '_')}.log"
     with log.open("ab") as out:
-        code = subprocess.call(["bash", str(run_sh)], env=env, stdout=out, stderr=subprocess.STDOUT)
+        code = subprocess.call(["bash", str(folder / "run.sh")], env=env, stdout=out, stderr=subprocess.STDOUT)
     summary = args.anchor_work / "summary.json"
     if code != 0 or not summary.exists():
         print(f"anchor {name}: run.sh failed ({code}), see {log}", flush=True)
@@ -196,7 +189,7 @@ def run_publisher(args: argparse.Namespace) -> None:
     from stereo_depth.ros.types import RCLPY_TYPES
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from anchor_frames import FRAME_ID, camera_infos, frames
+    from lib.anchor_frames import FRAME_ID, camera_infos, frames
 
     rclpy.init()
     node = rclpy.create_node("e2e_replay")
@@ -397,10 +390,10 @@ def run_case(case: Case, args: argparse.Namespace, workdir: Path, profile: bool)
     me = [sys.executable, str(Path(__file__).resolve())]
     monitor_out, sent_out = workdir / f"{label}.monitor.json", workdir / f"{label}.sent.json"
     timeline_out = workdir / f"{label}.timeline.json"
-    if args.timeline:  # bench/timeline_node.py in stereo_node's place
+    if args.timeline:  # bench/lib/timeline_node.py in stereo_node's place
         env.update(PYTHONPATH=os.pathsep.join([str(BENCH), env.get("PYTHONPATH", "")]).rstrip(os.pathsep))
         env["STEREO_DEPTH_TIMELINE"] = str(timeline_out)
-    module = "timeline_node" if args.timeline else args.node_module
+    module = "lib.timeline_node" if args.timeline else args.node_module
     node_cmd = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     for param in (*case.params, *args.param):
         node_cmd += ["-p", param]
@@ -459,7 +452,7 @@ TIMELINE_STEPS = (
 
 # A frame whose inputs reach the node more than this far apart had one repaired by DDS: a publisher on Fast DDS
 # defaults (512 KB segment) overwrites an image some reader has not taken and resends it after its writer's
-# 5 ms nack response delay (README, "Inputs and outputs over DDS"); the monitor's left image likewise.
+# 5 ms nack response delay (`--pairing` shows it); the monitor's left image likewise.
 REPAIRED_MS = 3.0
 MIN_FRAMES_PER_GROUP = 10
 REPAIRED_STEPS = (
@@ -474,7 +467,7 @@ def timeline_breakdown(
     events: dict[str, dict[str, int]], records: dict[str, list[tuple[int, int]]]
 ) -> dict[str, float]:
     """Medians (ms) of each step of a disparity's way, over the frames whose disparity the monitor got:
-    the node's events (bench/timeline_node.py) and the monitor's receipts share the system clock."""
+    the node's events (bench/lib/timeline_node.py) and the monitor's receipts share the system clock."""
     left, disparity = dict(records["in"]), dict(records["disparity"])  # (stamp, receipt) pairs
     steps: dict[str, list[float]] = {step: [] for step in TIMELINE_STEPS}
     for key, event in events.items():
@@ -651,7 +644,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE", help="extra stereo_node -p")
     parser.add_argument("--node-module", default="stereo_depth.nodes.stereo_node", help="python -m MODULE")
-    parser.add_argument("--domain-id", help="default: ROS_DOMAIN_ID, else a free one (bench/domain_lock.py)")
+    parser.add_argument("--domain-id", help="default: ROS_DOMAIN_ID, else a free one (bench/lib/domain_lock.py)")
     parser.add_argument(
         "--profiles",
         nargs="+",
@@ -665,22 +658,15 @@ def main() -> None:
     parser.add_argument(
         "--anchor",
         type=Path,
-        nargs="?",
-        const=find_anchor(),
-        help="run the C++ anchor's run.sh (default: shared/anchors/... above this repository) after each of "
-        "our runs of a case it has, and print both side by side",
+        metavar="DIR",
+        help="the C++ anchor's folder (its run.sh): run it after each of our runs of a case it has, and print "
+        "both side by side",
     )
     parser.add_argument("--anchor-work", type=Path, default=Path("/tmp/sip_anchor"), help="the anchor's WORK folder")
     parser.add_argument(
-        "--anchor-summary",
-        type=Path,
-        default=Path("/tmp/sip_anchor/summary.json"),
-        help="without --anchor: an earlier anchor summary.json, printed side by side when it exists",
-    )
-    parser.add_argument(
         "--timeline",
         action="store_true",
-        help="run bench/timeline_node.py in stereo_node's place and print where the disparity's latency goes",
+        help="run bench/lib/timeline_node.py in stereo_node's place and print where the disparity's latency goes",
     )
     parser.add_argument("--json", type=Path, help="write every run's figures here")
     parser.add_argument("--logdir", type=Path, help="keep the processes' logs here (default: a temporary folder)")
@@ -697,8 +683,8 @@ def main() -> None:
         return
     if args.pairing:
         args.cases, args.profiles = PAIRING, ["none", "all"]
-    if "--anchor" in sys.argv and args.anchor is None:
-        parser.error("--anchor: no shared/anchors/ros1_stereo_image_proc/run.sh above this repository; name it")
+    if args.anchor is not None and not (args.anchor / "run.sh").is_file():
+        parser.error(f"--anchor {args.anchor}: no run.sh there (the ROS 1 stereo_image_proc anchor's folder)")
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(machine_line(), flush=True)
     print(
@@ -755,15 +741,13 @@ def main() -> None:
                 f"bottleneck: {r['bottleneck']}"
             )
     if args.timeline:
-        print("\nwhere the disparity's latency goes (bench/timeline_node.py; medians over the frames, ms)")
+        print("\nwhere the disparity's latency goes (bench/lib/timeline_node.py; medians over the frames, ms)")
         for r in rows:
             print(f"{r['case']:26s}{r['profile']:>6s}")
             for step, value in r.get("timeline_ms", {}).items():
                 print(f"  {step:48s}{value:7.{0 if step.endswith('(%)') else 2}f}")
     if args.anchor is not None:
         print_anchor_comparison(rows, {name: median_figures(f) for name, f in anchor_runs.items()})
-    elif args.anchor_summary.exists():
-        print_anchor_comparison(rows, json.loads(args.anchor_summary.read_text()))
 
 
 def anchor_text(a: dict[str, Any]) -> str:

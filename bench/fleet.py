@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header, table_row, times
+from lib.table import parse_bench_arguments, table_header, table_row, times
 from offline_process import write_bag
 
 BAGS = 4

@@ -16,7 +16,7 @@ loops completely, so the path updates sit in the pixel loop's body, beside the s
   * other code: no such instruction nearby (loop control, addressing, scalar work).
 
 Shares of the samples in the JIT code (the census core's kernels; OpenCV and Python are left out).
-Set the `--simd` variables of bench/readme_figures.py to see another SIMD level.
+Set a level's variables from bench/lib/simd.py (SIMD_ENV) to see another SIMD level.
 
     .venv/bin/python bench/kernel_profile.py [--paths 6 5] [--frames 20] [--markdown]
 """
@@ -31,11 +31,10 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header, table_row
+from lib.table import parse_bench_arguments, table_header, table_row
 
 KINDS = (  # (name, instructions that mark it), checked in this order
     ("Hamming costs", ("psadbw", "popcnt")),
@@ -48,7 +47,7 @@ MARK_REACH = 12  # instructions either side of a sample searched for a marking o
 
 def child(paths: int, frames: int, out: Path) -> None:
     """Run the frames, then copy the JIT code (anonymous r-x mappings) to `out`/<start address hex>.bin."""
-    from census_steps import rectified_pair
+    from pipeline_stages import rectified_pair
 
     from stereo_depth.core.matching import create_matcher
     from stereo_depth.core.params import make_params
@@ -137,7 +136,7 @@ def main() -> None:
     runs = {paths: profile(paths, args.frames) for paths in args.paths}
     names = [name for name, _ in KINDS] + ["other code"]
     columns = ("part of the kernel", *(f"{paths} paths" for paths in args.paths))
-    print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames; {time.strftime('%Y-%m-%d')}")
+    print(f"640x480 EuRoC pair, 128 disparities, {args.frames} frames")
     print(table_header(columns) if args.markdown else "  ".join(columns))
     for name in names:
         row = (name, *(f"{100 * runs[p].get(name, 0.0):.0f}%" for p in args.paths))

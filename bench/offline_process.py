@@ -1,6 +1,6 @@
 """Offline: `stereo-depth process` frames/s against a bare OpenCV loop over the same bag, same run.
 
-The input is the anchor's synthetic stream (bench/anchor_frames.py: mono8, textured layers, 64 px of
+The input is the anchor's synthetic stream (bench/lib/anchor_frames.py: mono8, textured layers, 64 px of
 disparity) written to an uncompressed MCAP rosbag2. Ours is the real command line
 (`python -m stereo_depth.cli process IN OUT --profile P [options]`, its own frames/s line: read, sync,
 pipeline, outputs serialized into a new bag), in the variants of VARIANTS: every output (about 12 MB a
@@ -43,8 +43,8 @@ from stereo_depth.frames import OutputState, decode_frame, frame_outputs, match_
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
-from anchor_frames import FRAME_ID, camera_infos, frames
-from markdown_table import parse_bench_arguments, table_header, table_row, times
+from lib.anchor_frames import FRAME_ID, camera_infos, frames
+from lib.table import parse_bench_arguments, table_header, table_row, times
 
 NAMESPACE = "/stereo"
 PERIOD_NS = 33_333_333

@@ -35,7 +35,7 @@ from stereo_depth.messages import MessageBuffer, array_to_image, depth_to_cloud,
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header, table_row, times
+from lib.table import parse_bench_arguments, table_header, table_row, times
 
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 RESOLUTIONS = ((640, 480), (1280, 720))
@@ -55,6 +55,12 @@ def load_pair(width: int, height: int) -> tuple[np.ndarray, np.ndarray, StereoCa
     left, right = cv2.resize(left, (width, height)), cv2.resize(right, (width, height))
     info_l, info_r = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
     return left, right, StereoCamera(scaled_info(info_l, width, height), scaled_info(info_r, width, height))
+
+
+def rectified_pair() -> tuple[np.ndarray, np.ndarray]:
+    """The 640x480 EuRoC pair, rectified: what a matcher gets."""
+    left, right, camera = load_pair(640, 480)
+    return camera.rectify(left, "left"), camera.rectify(right, "right")
 
 
 def bare_opencv(left: np.ndarray, right: np.ndarray, camera: StereoCamera, matcher: Matcher) -> float:
@@ -100,7 +106,7 @@ def same_work(params: StereoParams) -> bool:
 
 
 def markdown_row(profile: str, size: str, med: dict[str, float], bare: list[float], first_match: float) -> str:
-    """The README's row: without a bare equivalent (no bare runs) the bare columns say so."""
+    """One table row: without a bare equivalent (no bare runs) the bare columns say so."""
     bare_cells = ("(no bare equivalent)", "")
     if bare:
         bare_ms = statistics.median(bare)

@@ -1,6 +1,6 @@
 """The census core's matching against OpenCV's SGBM 3-way at three SIMD levels of this machine, interleaved.
 
-One child process per level (native, AVX2, 128-bit: readme_figures.SIMD_ENV, each with its own numba
+One child process per level (native, AVX2, 128-bit: lib/simd.py SIMD_ENV, each with its own numba
 cache, compiled and warmed up first) keeps the matchers loaded; the parent asks each child in turn for
 one frame of each profile (each after a 50 ms pause, so no thread pool still spins from the match
 before), `--repeat` times, so a load change on the machine hits every level alike.
@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from interleaved import IDLE_S
-from markdown_table import table_header, table_row, times
-from simd_levels import LEVEL_COLUMNS, level_cells, run_levels, serve_level
+from lib.interleaved import IDLE_S
+from lib.simd import LEVEL_COLUMNS, level_cells, run_levels, serve_level
+from lib.table import table_header, table_row, times
 
 # (name, profile, overrides): OpenCV SGBM 3-way, then census_sgm with 6 paths (the profile), 8 and 5
 PROFILES: tuple[tuple[str, str, dict[str, int]], ...] = (
@@ -59,8 +59,7 @@ def main() -> None:
     args, machines, runs = run_levels(__file__, __doc__.splitlines()[0], 128, child)
     names = [name for name, _, _ in PROFILES]
     columns = (*LEVEL_COLUMNS, *(f"{n} ms" for n in names), *(f"{n} / default" for n in names[1:]))
-    day = time.strftime("%Y-%m-%d")
-    print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved; {day}")
+    print(f"640x480, {args.disparity_range} disparities, {args.repeat} frames per level, interleaved")
     if args.markdown:
         print(table_header(columns))
     for level, frames in runs.items():

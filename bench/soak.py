@@ -31,7 +31,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from domain_lock import isolate_on_this_host
+from lib.domain_lock import isolate_on_this_host
 
 from stereo_depth.machine import print_machine
 

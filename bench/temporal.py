@@ -41,7 +41,7 @@ from stereo_depth.formats.scenes import Scene, load_scene
 from stereo_depth.options import output_options
 
 sys.path.insert(0, str(Path(__file__).parent))
-from markdown_table import parse_bench_arguments, table_header, table_row
+from lib.table import parse_bench_arguments, table_header, table_row
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted((ROOT / "test/data/scenes").iterdir())
@@ -200,7 +200,7 @@ def header(markdown: bool) -> None:
 
 
 def report(name: str, profile: str, off: Row, on: Row, markdown: bool) -> None:
-    """One sequence without and with the filter: two rows, or one README row of on/off comparisons."""
+    """One sequence without and with the filter: two rows, or one markdown row of on/off comparisons."""
     if markdown:
         ratio = lambda a, b: f"{a / b:.2f}" if b > 0 else "-"  # noqa: E731
         cells = (name, f"`{profile}`", ratio(on.flicker, off.flicker), ratio(on.ghosts, off.ghosts))

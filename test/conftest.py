@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from ros_helpers import NodeProcess
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from domain_lock import claim_domain_id  # the benches lock their domain ids alike
+from lib.domain_lock import claim_domain_id  # the benches lock their domain ids alike
 
 DATA = Path(__file__).parent / "data"
 SCENES = DATA / "scenes"

@@ -285,7 +285,7 @@ def test_fill_holes_background_wins_in_a_row_gap() -> None:
 
 
 def test_the_matcher_reports_each_step_and_the_steps_account_for_its_time() -> None:
-    """bench/census_steps.py reads these: every step of census_sgm, none counted twice or left out."""
+    """The matcher reports every step of census_sgm (step_ms), none counted twice or left out."""
     left, right, _, _, nd = load_scene("cones")
     matcher = create_matcher(dataclasses.replace(PROFILE, disparity_range=nd))
     assert isinstance(matcher, CensusSGMMatcher)

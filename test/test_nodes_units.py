@@ -403,7 +403,7 @@ def test_benches_that_talk_dds_take_a_free_domain_id_as_test_runs_do(tmp_path: P
     env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"} | {"TMPDIR": str(tmp_path)}
 
     def bench_domain(extra_env: dict[str, str], then: str = "") -> subprocess.CompletedProcess[str]:
-        code = f"import domain_lock; print(domain_lock.isolate_on_this_host()); {then}"
+        code = f"from lib import domain_lock; print(domain_lock.isolate_on_this_host()); {then}"
         command = [sys.executable, "-c", code]
         return subprocess.run(command, cwd=BENCH, env=env | extra_env, capture_output=True, text=True, timeout=60)
 

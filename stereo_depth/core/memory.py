@@ -5,7 +5,7 @@ core's intermediates (about 7 MB a frame at 640x480). glibc raises its mmap thre
 block freed so far, but hands blocks above it back to the kernel on free and trims the heap's free
 top above twice it, per thread's arena: with the census core, or frames of several sizes, the next
 frame's buffers fault their pages in again, zero-filled (~2,000 page faults and ~3-5 ms of a 640x480
-`quality` frame, `bench/page_faults.py`). Fixed thresholds keep those pages in the process for reuse;
+`quality` frame, docs/design/decisions.md). Fixed thresholds keep those pages in the process for reuse;
 the process then stays at its peak size instead of shrinking between frames.
 """
 

@@ -77,7 +77,7 @@ class SubscriberWatch:
 
     rclpy gives each publisher two event handlers, and its standard executor rebuilds its wait set from
     every handler of the node in Python each time it wakes, holding the GIL, several times a frame
-    (bench/executor_wake.py). So outputs carry none: the node calls `check` from a timer, which looks
+    (docs/design/decisions.md). So outputs carry none: the node calls `check` from a timer, which looks
     at the topic's subscriptions when their count moved (or `everything`), and warns once about each
     that asks for QoS the output does not offer. A subscriber of another type is its own node's to report.
     """

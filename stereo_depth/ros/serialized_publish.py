@@ -7,7 +7,7 @@ executor needs it to take the next images, so the next frame waited for the prev
 The nodes therefore compute the disparity and an organized cloud straight into their CDR bytes
 (`messages.in_serialized_bytes`, a `SerializedMessage`) and hand them to
 `rcl_publish_serialized_message` through ctypes, which releases the GIL for the call: one copy fewer,
-0.72-0.77x the time for that cloud, the other threads running meanwhile (`bench/serialized_publish.py`).
+0.72-0.77x the time for that cloud, the other threads running meanwhile (docs/design/decisions.md).
 rcl returns once Fast DDS has copied the bytes, so the buffer may be reused for the next frame, as
 with `publish()`.
 

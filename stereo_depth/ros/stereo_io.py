@@ -77,7 +77,7 @@ RECEIPTS_KEPT = 64  # receipt times of the first input's newest messages, looked
 # How long a thread running Python may keep the GIL while another waits for it (Python's default: 5 ms). The
 # census core returns to Python between its kernels dozens of times a frame, and each time waits for the GIL
 # while the executor or the cloud stage runs Python: at 5 ms that took its match from 50 to 180 ms beside
-# one busy Python thread, at 0.5 ms to 100 ms, what sharing a core costs (bench/gil_handover.py).
+# one busy Python thread, at 0.5 ms to 100 ms, what sharing a core costs (docs/design/decisions.md).
 GIL_SWITCH_S = 0.0005
 
 

@@ -95,7 +95,7 @@ def census_sgm(
     Filled pixels get confidence ``gap_confidence``. ``gap_max`` 0 disables interpolation,
     a negative ``occlusion_margin`` / ``border_margin`` disables those fills.
 
-    ``timings``, when given, receives each step's milliseconds (``STEPS``; bench/census_steps.py).
+    ``timings``, when given, receives each step's milliseconds (``STEPS``; docs/design/decisions.md).
     """
     _check_inputs(left, right, min_disparity, num_disparities, window_size, census_size, paths)
     compile_all()

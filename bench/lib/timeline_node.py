@@ -1,6 +1,6 @@
 """stereo_node with a per-frame timeline, for `bench/e2e_dds.py --timeline`: where a disparity's latency goes.
 
-Run as `python -m timeline_node` (bench/ on PYTHONPATH) in place of stereo_depth.nodes.stereo_node. For each
+Run as `python -m lib.timeline_node` (bench/ on PYTHONPATH) in place of stereo_depth.nodes.stereo_node. For each
 input stamp it records, in the system clock's ns (the clock of DDS's sample timestamps and of e2e_dds's
 monitor): each input's DDS reception, its callback's start and end, the worker's start on the set, and
 the start and end of each output's publish(). At exit it writes them as JSON to $STEREO_DEPTH_TIMELINE.

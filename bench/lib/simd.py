@@ -1,6 +1,6 @@
-"""Benches that run one child process per SIMD level of this machine (native, AVX2, 128-bit:
-readme_figures.SIMD_ENV, each with its own numba cache) and ask them for frames in turn (interleaved.py):
-bench/simd_match_ratio.py and bench/bm_kernels.py share their command line, children and table cells."""
+"""SIMD levels on one machine: the environment that makes numba and OpenCV use a narrower level than the
+CPU has (for `make bench-docs --simd` and for benches that run one child process per level, each with its
+own numba cache, asked for frames in turn: bench/simd_match_ratio.py and bench/bm_kernels.py)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,28 @@ import argparse
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
-from interleaved import frames_in_turn, serve, start
-from markdown_table import parse_bench_arguments
-from readme_figures import SIMD_ENV, simd_env
+from lib.interleaved import frames_in_turn, serve, start
+from lib.table import parse_bench_arguments
+
+# the environment that makes numba and OpenCV use that level on a wider machine
+SIMD_ENV = {
+    "native": {},
+    "avx2": {"NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": "", "OPENCV_CPU_DISABLE": "AVX512-SKX"},
+    "128": {
+        "NUMBA_CPU_NAME": "x86-64-v2",
+        "NUMBA_CPU_FEATURES": "",
+        "OPENCV_CPU_DISABLE": "AVX,AVX2,AVX512-SKX,FP16",
+    },
+}
+
+
+def simd_env(level: str) -> dict[str, str]:
+    """SIMD_ENV of that level, with a numba cache folder of its own (~/.cache/stereo_depth/numba_<level>)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stereo_depth" / f"numba_{level}"
+    return {**SIMD_ENV[level], "NUMBA_CACHE_DIR": str(cache)}
 
 
 def run_levels(

@@ -1,5 +1,5 @@
-"""The README's table layout: a bench run with --markdown prints its figures as the rows of a GitHub
-markdown table, so `make bench-readme` output pastes into README.md as it is."""
+"""Markdown tables: a bench run with --markdown prints its figures as the rows of a GitHub markdown table,
+which `make bench-docs` (bench/performance_docs.py) puts into docs/performance.md as they are."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def table_header(columns: Iterable[str]) -> str:
 
 
 def times(ratio: float) -> str:
-    """A ratio against the baseline measured in the same run, as the README writes it."""
+    """A ratio against the baseline measured in the same run."""
     return f"{ratio:.2f}x"
 
 
@@ -29,8 +29,8 @@ def ratio(value: float, baseline: float) -> float:
     return value / baseline if baseline else float("nan")
 
 
-def parse_bench_arguments(parser: argparse.ArgumentParser, markdown: str = "the README's table") -> argparse.Namespace:
-    """How a bench that the README quotes starts: `--markdown` added, its arguments read, then the
+def parse_bench_arguments(parser: argparse.ArgumentParser, markdown: str = "a markdown table") -> argparse.Namespace:
+    """How a bench starts: `--markdown` added, its arguments read, then the
     machine header printed before any figure."""
     parser.add_argument("--markdown", action="store_true", help=markdown)
     args = parser.parse_args()

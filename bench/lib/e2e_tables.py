@@ -1,8 +1,8 @@
-"""The README's end-to-end tables, from `bench/e2e_dds.py --json` runs (called as a command, unchanged).
+"""The end-to-end tables of docs/performance.md, from `bench/e2e_dds.py --json` runs (called as a command).
 
 Each table has its baseline from the same run: bare rclpy for the publish orders, the default
-`max_waiting_frames` for the queue lengths, the ROS 1 C++ stereo_image_proc anchor for the node
-(when its summary exists; run.sh writes it), `default` for the quality profile's rate.
+`max_waiting_frames` for the queue lengths, the ROS 1 C++ stereo_image_proc anchor run in turn with the
+node (`--anchor DIR`), `default` for the quality profile's rate.
 """
 
 from __future__ import annotations
@@ -11,14 +11,15 @@ import json
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from e2e_dds import PAIRING, median_row
-from markdown_table import ratio, table_header, table_row, times
+from e2e_dds import PAIRING, median_figures, median_row
 
-E2E = Path(__file__).resolve().parent / "e2e_dds.py"
-ANCHOR_SUMMARY = Path("/tmp/sip_anchor/summary.json")
+from lib.table import ratio, table_header, table_row, times
+
+E2E = Path(__file__).resolve().parents[1] / "e2e_dds.py"
 PAIRING_LABELS = {
     "bare_vga_30": "bare rclpy, disparity- and cloud-sized messages (the baseline)",
     "bm_vga_30_info_first": "camera_info first (left info, right info, left image, right image)",
@@ -59,23 +60,42 @@ QUALITY_CASES = ("default_vga_30_128", "quality_vga_30_128")  # default first: t
 
 
 def frames(quick: bool) -> int:
-    return 30 if quick else 300
+    """Frames per e2e run: 5 s at 30 Hz after the warm-up, enough for a median and a p95 (--quick: 1 s)."""
+    return 30 if quick else 150
 
 
-def e2e_rows(work: Path, quick: bool, *options: str) -> dict[tuple[str, str], dict[str, Any]] | None:
-    """One e2e_dds.py run (its own table goes to stderr as progress): (case, profile) -> median row."""
+Rows = dict[tuple[str, str], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class E2eRun:
+    """One e2e_dds.py run's figures: (case, profile) -> median row; anchor case -> its median figures."""
+
+    rows: Rows
+    anchor: dict[str, dict[str, Any]]
+
+
+def e2e_run(work: Path, quick: bool, *options: str) -> E2eRun | None:
+    """One e2e_dds.py run (its own table goes to stderr as progress); None (and a note) if it failed."""
     report = work / f"e2e_{time.monotonic_ns()}.json"
     command = [sys.executable, str(E2E), *options, "--frames", str(frames(quick)), "--json", str(report)]
     print(f"$ {' '.join(command)}", file=sys.stderr, flush=True)
     if subprocess.run(command, stdout=sys.stderr, check=False).returncode != 0:
         print(f"(failed: {' '.join(options)}; see the output above on stderr)")
         return None
+    written = json.loads(report.read_text())  # e2e_dds --json: {"runs": [...], "anchor": {case: [...]}}
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for row in json.loads(report.read_text())["runs"]:  # e2e_dds --json: {"runs": [...], "anchor": [...]}
+    for row in written["runs"]:
         for output in (row[name] for name in OUTPUTS if row[name]):  # no output seen: no latency, NaN
             output.update({key: output.get(key, NAN) for key in LATENCIES})
         runs.setdefault((row["case"], row["profile"]), []).append(row)
-    return {key: median_row(rows) if len(rows) > 1 else rows[0] for key, rows in runs.items()}
+    rows = {key: median_row(rows) if len(rows) > 1 else rows[0] for key, rows in runs.items()}
+    return E2eRun(rows, {name: median_figures(figures) for name, figures in written["anchor"].items()})
+
+
+def e2e_rows(work: Path, quick: bool, *options: str) -> Rows | None:
+    run = e2e_run(work, quick, *options)
+    return None if run is None else run.rows
 
 
 def span(values: list[float], digits: int = 0) -> str:
@@ -137,25 +157,21 @@ def queue_lengths(work: Path, quick: bool, default_row: dict[str, Any]) -> bool:
     return True
 
 
-def anchor(work: Path, quick: bool) -> bool:
-    """The node beside the ROS 1 C++ anchor, profile exported everywhere, latency as the anchor measures it
-    (from the monitor's receipt of left/image_raw)."""
+def anchor(work: Path, quick: bool, folder: Path) -> bool:
+    """The node beside the ROS 1 C++ anchor (folder/run.sh), run in turn case by case, profile exported
+    everywhere, latency as the anchor measures it (from the monitor's receipt of left/image_raw)."""
     cases = [case for _, _, ours in ANCHOR_GROUPS for case, _ in ours]
-    rows = e2e_rows(work, quick, "--cases", *cases, "--profiles", "all")
-    if rows is None:
+    run = e2e_run(work, quick, "--cases", *cases, "--profiles", "all", "--anchor", str(folder))
+    if run is None:
         return False
-    summary: dict[str, Any] = json.loads(ANCHOR_SUMMARY.read_text()) if ANCHOR_SUMMARY.exists() else {}
-    if summary:
-        made = time.strftime("%Y-%m-%d %H:%M", time.localtime(ANCHOR_SUMMARY.stat().st_mtime))
-        print(f"C++ rows: {ANCHOR_SUMMARY}, written {made} by ../shared/anchors/ros1_stereo_image_proc/run.sh.\n")
-    else:
-        print(f"No C++ rows: {ANCHOR_SUMMARY} is missing (the anchor's run.sh writes it).\n")
     n = frames(quick)
+    print(f"{n} frames per case, the C++ chain run after each of our runs of a case it has:")
     columns = ["case", "", "disparity Hz", "points2 Hz", f"dropped /{n} (disparity / points2)"]
     columns += ["disparity latency ms", "points2 latency ms (p95)", "latency vs C++ (disparity / points2)", "node CPU"]
     print(table_header(columns))
+    missing = []
     for case, anchor_name, ours in ANCHOR_GROUPS:
-        theirs = summary.get(anchor_name or "")
+        theirs = run.anchor.get(anchor_name or "")
         first = case
         if theirs:
             points = theirs.get("points2_hz")
@@ -167,9 +183,14 @@ def anchor(work: Path, quick: bool) -> bool:
             cells += [f"{points_latency:.1f}" if points_latency else "-", "1.00x (baseline)"]
             print(table_row((*cells, f"{theirs['node_cpu_pct']:.0f}%")))
             first = ""
+        elif anchor_name:
+            missing.append(anchor_name)
         for name, label in ours:
-            print(table_row((first, label, *node_cells(rows[(name, "all")], theirs))))
+            print(table_row((first, label, *node_cells(run.rows[(name, "all")], theirs))))
             first = ""
+    if missing:
+        print(f"\nThe C++ chain gave no figures for: {', '.join(missing)} (run.sh failed; its log is on stderr).")
+        return False
     return True
 
 

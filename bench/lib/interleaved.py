@@ -1,4 +1,4 @@
-"""Benches that compare processes frame by frame (bench/simd_match_ratio.py, bench/page_faults.py).
+"""Benches that compare processes frame by frame (bench/simd_match_ratio.py, bench/bm_kernels.py).
 
 Each child process keeps its matchers loaded and serves one frame per line it reads; the parent asks
 each child in turn, `--repeat` times, so a load change on the machine hits every child alike.

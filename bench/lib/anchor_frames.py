@@ -1,6 +1,6 @@
-"""The anchor's synthetic stereo stream, rendered in Python: the same recipe as
-../shared/anchors/ros1_stereo_image_proc/make_bag.py, so our figures and stereo_image_proc's come from
-the same kind of frames (mono8, fx = fy = 500, cx = W/2, cy = H/2, no distortion, baseline 0.1 m,
+"""The anchor's synthetic stereo stream, rendered in Python: the same recipe as the ROS 1 stereo_image_proc
+anchor's make_bag.py (bench/e2e_dds.py --anchor DIR), so our figures and stereo_image_proc's come from the
+same kind of frames (mono8, fx = fy = 500, cx = W/2, cy = H/2, no distortion, baseline 0.1 m,
 textured fronto-parallel layers at disparities 6 / 20 / 35 / 50 px that slide sideways over time).
 
 Same seed, same random draws in the same order: the frames equal the anchor bag's except for one grey level
