@@ -42,11 +42,12 @@ def prose(path: Path) -> list[str]:
 
 
 def anchors(path: Path) -> set[str]:
-    """The #anchors GitHub gives a file's headings: lower case, punctuation dropped, spaces to hyphens,
-    a repeated one numbered -1, -2, ..."""
+    """The #anchors GitHub gives a file's headings (lower case, punctuation dropped, spaces to hyphens,
+    a repeated one numbered -1, -2, ...), and those set by hand as `<a id="...">`."""
     seen: Counter[str] = Counter()
     out = set()
     for line in prose(path):
+        out.update(re.findall(r'<a id="([\w-]+)"></a>', line))
         heading = re.match(r"#{1,6}\s+(.*)", line)
         if not heading:
             continue

@@ -347,7 +347,7 @@ def test_the_signal_handler_takes_no_lock() -> None:
 
 def test_a_node_process_hands_the_gil_over_sooner_than_python_does(tmp_path: Path) -> None:
     """The census core takes the GIL back between its kernels many times a frame; beside the executor's
-    Python, Python's 5 ms hand-over made a match several times slower (bench/gil_handover.py). A node's
+    Python, Python's 5 ms hand-over made a match several times slower (docs/design/decisions.md). A node's
     main sets the shorter interval before anything else runs (here one that then refuses its params file)."""
     code = (
         "import sys; from stereo_depth.nodes.stereo_node import main; "
