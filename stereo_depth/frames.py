@@ -12,7 +12,7 @@ option for option:
   cloud builder for all.
 
 ROS-free: messages of either flavour (rclpy or rosbags) go in, messages of the caller's `MessageTypes`
-come out (see messages.py).
+come out (see stereo_depth.messages).
 """
 
 from __future__ import annotations
