@@ -3,7 +3,7 @@
 In a node, the executor (taking and converting messages) and the cloud stage run Python beside the match.
 The census core returns to Python between its kernels many times a frame, and each return waits for the
 GIL until the thread holding it is asked to let go: every `sys.setswitchinterval` (5 ms by default, the
-nodes' `GIL_SWITCH_S` in ros/stereo_io.py). OpenCV's SGBM is one call, so it waits once a frame.
+nodes' `GIL_SWITCH_S` in ros/node_main.py). OpenCV's SGBM is one call, so it waits once a frame.
 
 Per matcher (`default`: OpenCV SGBM 3-way; `quality`: census_sgm, 6 paths) and interval (Python's 5 ms, the
 nodes' 0.5 ms): median match ms alone and beside one thread running Python bytecode, on one long-lived
@@ -33,7 +33,7 @@ from pipeline_stages import load_pair
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.core.threads import use_threads
-from stereo_depth.ros.stereo_io import GIL_SWITCH_S
+from stereo_depth.ros.node_main import GIL_SWITCH_S
 
 PYTHON_DEFAULT_S = 0.005
 INTERVALS = {"5 ms (Python's)": PYTHON_DEFAULT_S, f"{GIL_SWITCH_S * 1000:g} ms (nodes')": GIL_SWITCH_S}

@@ -59,7 +59,7 @@ def spin(seconds: float) -> None:
 
 class CloudStage:
     """The node's second stage for one frame, on a thread of its own: its own `result_geometry` and
-    `geometry_outputs` (stereo_depth/frames.py) build points2 in its serialized bytes."""
+    `geometry_outputs` (stereo_depth/frames/) build points2 in its serialized bytes."""
 
     def __init__(self, pipeline: StereoPipeline) -> None:
         self._pipeline = pipeline
