@@ -6,22 +6,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS
-from stereo_depth.ros.matching_node import MatchingNode
+from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
 from stereo_depth.sync import STEREO_CALIBRATIONS
 
 
 class DisparityNode(MatchingNode):
-    INPUTS = (
-        ("left/image_rect", Image),
-        ("left/camera_info", CameraInfo),
-        ("right/image_rect", Image),
-        ("right/camera_info", CameraInfo),
-    )
+    INPUTS = stereo_inputs("image_rect")
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
     OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, *TEMPORAL_OPTIONS, "cpu_threads")
     RECTIFIED = True

@@ -24,7 +24,7 @@ from stereo_depth.options import (
     INPUT_OPTIONS,
     TEMPORAL_OPTIONS,
 )
-from stereo_depth.ros.matching_node import MatchingNode
+from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
 from stereo_depth.sync import STEREO_CALIBRATIONS
 
@@ -54,12 +54,7 @@ SWITCHES = {
 
 
 class StereoNode(MatchingNode):
-    INPUTS = (
-        ("left/image_raw", Image),
-        ("left/camera_info", CameraInfo),
-        ("right/image_raw", Image),
-        ("right/camera_info", CameraInfo),
-    )
+    INPUTS = stereo_inputs("image_raw")
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
     IMAGE_INPUTS = (0, 2)
     CAMERA_INFO_FILES = ((1, "left_camera_info_url"), (3, "right_camera_info_url"))

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+from sensor_msgs.msg import CameraInfo, Image
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import warm_up_kernels
@@ -31,6 +32,17 @@ from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.node_base import FrameJob
 from stereo_depth.ros.stream_node import StreamNode
 from stereo_depth.sync import StereoSet
+
+
+def stereo_inputs(image: str) -> tuple[tuple[str, Any], ...]:
+    """A stereo camera's four inputs in synchronizer order (sync.STEREO_INPUTS): `image` is the image
+    topic's last name (image_raw, image_rect)."""
+    return (
+        (f"left/{image}", Image),
+        ("left/camera_info", CameraInfo),
+        (f"right/{image}", Image),
+        ("right/camera_info", CameraInfo),
+    )
 
 
 class CloudTask(NamedTuple):

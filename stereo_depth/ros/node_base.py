@@ -15,7 +15,7 @@ import itertools
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.event_handler import PublisherEventCallbacks
@@ -43,7 +43,6 @@ from stereo_depth.ros.qos import (
 )
 from stereo_depth.ros.types import RCLPY_TYPES
 
-T = TypeVar("T")
 # An input's publisher or an output's subscriber that came or went (AdaptiveSubscription, SubscriberWatch) is
 # looked at within this; every one of them at the second.
 QOS_RECHECK_S = 0.25
