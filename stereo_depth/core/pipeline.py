@@ -232,14 +232,14 @@ class CensusCoreLoad(NamedTuple):
     cache: str
 
 
-def warm_up_kernels(params: StereoParams | None, *, temporal_filter: bool) -> CensusCoreLoad | None:
+def warm_up_kernels(params: StereoParams | None) -> CensusCoreLoad | None:
     """Every numba kernel a stream of these parameters runs, compiled or loaded from numba's cache now,
     before its first input, rather than on the first frame, which would wait for them (a node drops the
     frames arriving meanwhile): the temporal filter's, the census core's (about a second from the cache,
     one to two minutes on the first start after installing) and our BM's for this disparity count. A
     matcher switched to at run time still loads on its first frame. Returns the census core's load, or
     None when these parameters do not use it."""
-    if temporal_filter:
+    if params is not None and params.temporal_filter:
         compile_temporal_kernels()
     census = None
     if params is not None and params.matcher == "census_sgm":

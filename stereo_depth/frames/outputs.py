@@ -44,15 +44,15 @@ UINT16_MAX = 65535
 
 
 def filtered_disparity(
-    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, options: OutputOptions
+    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, params: StereoParams
 ) -> np.ndarray:
     """`temporal_filter`: the frame's disparity filtered over time, which disparity, depth and points2 all
     carry (the matcher's own stays in `result`). Call it once per frame in stamp order, after matching and
     before the outputs; off, it forgets what it had seen and gives the matcher's disparity."""
-    if not options.temporal_filter:
+    if not params.temporal_filter:
         temporal.reset()
         return result.disparity
-    return temporal.apply(result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), options.temporal)
+    return temporal.apply(result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), params.temporal)
 
 
 # ---------------------------------------------------------------- match outputs

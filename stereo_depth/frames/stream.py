@@ -168,8 +168,8 @@ class FrameStream:
         frame, result, output = matched.frame, matched.result, matched.output
         stage_ms = dict(result.timings_ms)
         start = time.perf_counter()
-        disparity = filtered_disparity(self.state.temporal, frame, result, output)
-        if output.temporal_filter:
+        disparity = filtered_disparity(self.state.temporal, frame, result, matched.params)
+        if matched.params.temporal_filter:
             stage_ms["temporal"] = (time.perf_counter() - start) * 1000.0
         images = image_outputs(
             self.types, frame.header, result, disparity, matched.params, wanted, self.state.disparity_buffer
@@ -191,7 +191,7 @@ class FrameStream:
             matched = self.matched(inputs)
         except StereoDepthError:
             return
-        filtered_disparity(self.state.temporal, matched.frame, matched.result, matched.output)
+        filtered_disparity(self.state.temporal, matched.frame, matched.result, matched.params)
 
     def disparity_cloud(self, inputs: StereoSet, disparity_msg: Any, disparity_name: str) -> DisparityOutputs:
         """The cloud job of a DisparityImage (offset-adjusted, its rectified left image as colour in

@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, TEMPORAL_OPTIONS
+from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS
 from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
 from stereo_depth.sync import STEREO_CALIBRATIONS
@@ -17,7 +17,7 @@ from stereo_depth.sync import STEREO_CALIBRATIONS
 class DisparityNode(MatchingNode):
     INPUTS = stereo_inputs("image_rect")
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
-    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, *TEMPORAL_OPTIONS, "cpu_threads")
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, "cpu_threads")
     RECTIFIED = True
     OUTPUT_TYPES: ClassVar[Mapping[str, Any]] = {"disparity": DisparityImage}  # always built, listened to or not
 

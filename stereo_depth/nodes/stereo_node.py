@@ -22,7 +22,6 @@ from stereo_depth.options import (
     CLOUD_OPTIONS,
     DRIVER_FIX_OPTIONS,
     INPUT_OPTIONS,
-    TEMPORAL_OPTIONS,
 )
 from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
@@ -63,7 +62,6 @@ class StereoNode(MatchingNode):
         *CAMERA_OPTIONS,
         *DRIVER_FIX_OPTIONS,
         *CLOUD_OPTIONS,
-        *TEMPORAL_OPTIONS,
         "depth_encoding",
         "clearing_max_depth",
         "compressed_depth_format",

@@ -97,7 +97,7 @@ class MatchingNode(StreamNode):
                     "census_sgm core: loading its machine code (compiled on the first start after installing, "
                     "one to two minutes; `stereo-depth compile` does that ahead)"
                 )
-            census = warm_up_kernels(settings.stereo, temporal_filter=settings.output.temporal_filter)
+            census = warm_up_kernels(settings.stereo)
             if census is not None:
                 self.get_logger().info(f"census_sgm core ready in {census.seconds:.1f} s (numba cache: {census.cache})")
 
