@@ -31,15 +31,14 @@ import cv2
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from stereo_depth.bag.process import FrameMessages, ProcessOptions
+from stereo_depth.bag.process import ProcessOptions
 from stereo_depth.bag.reader import StereoBagReader
 from stereo_depth.bag.types import rosbags_types, typestore
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.matching import whole_image
 from stereo_depth.core.params import make_params
-from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.frames import OutputState, decode_frame, frame_outputs, match_frame
+from stereo_depth.frames import FrameStream
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -86,18 +85,15 @@ def ours_unwritten(bag: Path, profile: str) -> float:
     """frames/s of what `process` does per frame without the storage: read + pair, pipeline, every output
     message built (stereo_depth.bag.process's own functions), nothing written."""
     types, params, options = rosbags_types(), make_params(profile), ProcessOptions()
-    pipeline, state = StereoPipeline(params), OutputState()
     start = time.perf_counter()
     done = 0
     with StereoBagReader(bag) as reader:
         names, rectified = reader.topics.input_names, reader.topics.rectified
+        stream = FrameStream(types, params, options.output, rectified=rectified, names=names)
         for inputs in reader.frames():
-            out = FrameMessages()
-            frame = decode_frame(inputs, pipeline, options.output, rectified=rectified, names=names)
-            result = match_frame(pipeline, frame, names)
-            frame_outputs(
-                types, pipeline, frame, result, params, options.output, options.outputs, state, out.images, out.cloud
-            )
+            out = stream.match(inputs, options.outputs)
+            if out.cloud is not None:
+                out.cloud.run()
             done += 1
     return done / (time.perf_counter() - start)
 

@@ -38,7 +38,6 @@ from stereo_depth.core.temporal import TemporalFilter, TemporalSettings
 from stereo_depth.core.threads import use_threads
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import Scene, load_scene
-from stereo_depth.options import output_options
 
 sys.path.insert(0, str(Path(__file__).parent))
 from lib.table import parse_bench_arguments, table_header, table_row
@@ -236,8 +235,7 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="temporal_* options")
     args = parse_bench_arguments(parser)
     values = dict(item.split("=", 1) for item in args.set)
-    options = output_options({"temporal_filter": "true", **values})
-    settings = options.temporal
+    settings = make_params("default", {"temporal_filter": "true", **values}).temporal
     threads = use_threads(0)  # stereo_node's default (cpu_threads 0)
     print(
         f"temporal filter: {settings}; {args.frames} frames a sequence, the first {args.warm_up} not scored; "

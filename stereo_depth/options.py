@@ -22,7 +22,6 @@ from typing import Any
 
 from stereo_depth.core.option_fields import check_ranges, coerced, option
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams
-from stereo_depth.core.temporal import TemporalSettings
 from stereo_depth.errors import ParameterError
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import COMPRESSED_DEPTH_FORMATS, DEFAULT_MAX_PIXELS
@@ -104,43 +103,6 @@ class OutputOptions:
         3, "depth/compressedDepth PNG compression level (the transport's png_level)", 0, 9, 1
     )
 
-    temporal_filter: bool = option(
-        False,
-        "Filter the disparity over time before depth and points2: a pixel is output only when it agrees "
-        "with temporal_persistence of the last temporal_history frames (no ghost points)",
-    )
-    temporal_alpha: float = option(
-        0.2, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
-    )
-    temporal_delta: float = option(
-        2.0,
-        "Temporal filter: values within this many px agree (one surface); a value farther from the "
-        "pixel's newest restarts its average",
-        0.0,
-        1e3,
-    )
-    temporal_persistence: int = option(
-        4, "Temporal filter: frames of temporal_history a pixel must agree in to be output", 1, 8, 1
-    )
-    temporal_history: int = option(8, "Temporal filter: frames remembered per pixel", 1, 8, 1)
-    temporal_motion_reset: float = option(
-        0.0,
-        "Temporal filter: restart every pixel when more than this share of them changed at once "
-        "(the camera moved fast; 0 = off)",
-        0.0,
-        1.0,
-    )
-
-    @property
-    def temporal(self) -> TemporalSettings:
-        return TemporalSettings(
-            self.temporal_alpha,
-            self.temporal_delta,
-            self.temporal_persistence,
-            self.temporal_history,
-            self.temporal_motion_reset,
-        )
-
     def validate(self) -> OutputOptions:
         check_ranges(self)
         checks = [
@@ -158,7 +120,6 @@ class OutputOptions:
                 raise ParameterError(reason)
         if self.mask_image:
             read_mask(self.mask_image)  # refused now, not frame after frame
-        self.temporal.validate()
         return self
 
 
@@ -295,8 +256,6 @@ CLOUD_OPTIONS = (
     "cloud_voxel_size",
     "points_max_rate",
 )
-# the temporal filter on the disparity (stereo_node, disparity_node)
-TEMPORAL_OPTIONS = tuple(f.name for f in dataclasses.fields(OutputOptions) if f.name.startswith("temporal_"))
 # what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)
 DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are

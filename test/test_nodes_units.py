@@ -36,7 +36,7 @@ from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, MessageError, StereoDepthError
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.frames import InputNames, decode_frame, named
+from stereo_depth.frames import InputNames, decode_frame, named_errors
 from stereo_depth.messages import (
     SerializedMessage,
     array_to_image,
@@ -52,10 +52,10 @@ from stereo_depth.options_docs import render_config_yaml
 from stereo_depth.ros import problems, serialized_publish
 from stereo_depth.ros.diagnostics import NodeDiagnostics, RateMonitor
 from stereo_depth.ros.latest_worker import LatestWorker
+from stereo_depth.ros.node_main import GIL_SWITCH_S
 from stereo_depth.ros.parameters import NodeParameters
 from stereo_depth.ros.qos import choose_reliability
 from stereo_depth.ros.raw_inputs import raw_reader
-from stereo_depth.ros.stereo_io import GIL_SWITCH_S
 from stereo_depth.ros.transport import PROFILE_VARIABLES, use_large_message_profile
 from stereo_depth.ros.types import RCLPY_SERIALIZED, RCLPY_TYPES
 from stereo_depth.sync import StereoSet, SyncCounters
@@ -273,6 +273,12 @@ def refused(log: problems.ProblemLog, convert: Any, *args: Any) -> None:
         convert(*args)
     except StereoDepthError as exc:
         log.skipped(str(exc), problems.error_key(exc))
+
+
+def named(topic: str, convert: Any, *args: Any) -> None:
+    """`convert(*args)` as a node reads its input `topic`."""
+    with named_errors(topic):
+        convert(*args)
 
 
 def test_problem_log_gives_one_line_per_kind_and_period_then_counts_the_rest(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -24,11 +24,11 @@ def process_args(*extra: str) -> argparse.Namespace:
 
 
 def test_sync_flags_come_from_the_node_options_and_keep_their_old_spelling() -> None:
-    settings = process_command.settings_from(
+    _, settings = process_command.settings_from(
         process_args("--approximate-sync", "--approximate-sync-tolerance", "0.005")
     )
     assert settings.options.approximate_sync and settings.options.approximate_sync_tolerance_seconds == 0.005
-    settings = process_command.settings_from(process_args("--queue-size", "7", "--no-approximate-sync"))
+    _, settings = process_command.settings_from(process_args("--queue-size", "7", "--no-approximate-sync"))
     assert settings.options.queue_size == 7 and not settings.options.approximate_sync
 
 
@@ -64,7 +64,7 @@ def test_process_reads_its_parameter_file_once(tmp_path: Path, monkeypatch: pyte
 
     read = process_command.read_params_file
     monkeypatch.setattr(process_command, "read_params_file", counting)
-    settings = process_command.settings_from(process_args("--params", str(params)))
+    _, settings = process_command.settings_from(process_args("--params", str(params)))
     assert reads == [params]
     assert settings.stereo is not None and settings.stereo.disparity_range == 32
     assert settings.options.queue_size == 7 and settings.output.use_color is False

@@ -82,6 +82,18 @@ def test_sourcing_the_workspace_exports_the_large_message_profile_unless_one_is_
         assert ours.is_file()
 
 
+ROS_FREE = (
+    "rclpy",
+    "rosbags",
+    "sensor_msgs",
+    "stereo_msgs",
+    "stereo_depth.ros",
+    "stereo_depth.nodes",
+    "stereo_depth.bag",
+    "stereo_depth.commands",
+)
+
+
 def _imports(path: Path) -> set[str]:
     tree = ast.parse(path.read_text())
     names = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
@@ -92,11 +104,13 @@ def _imports(path: Path) -> set[str]:
     ("layer", "forbidden"),
     [
         ("ros", ("stereo_depth.bag",)),
-        ("core", ("rclpy", "rosbags", "yaml", "sensor_msgs", "stereo_msgs", "stereo_depth.ros", "stereo_depth.bag")),
+        ("core", (*ROS_FREE, "yaml", "stereo_depth.frames", "stereo_depth.messages")),
+        ("frames", ROS_FREE),
     ],
 )
 def test_layers_import_only_what_the_design_lets_them(layer: str, forbidden: tuple[str, ...]) -> None:
-    """DESIGN.md's layers: ros/ never imports bag/; core/ is numpy, OpenCV and numba, no ROS, rosbags or yaml."""
+    """DESIGN.md's layers: ros/ never imports bag/; core/ is numpy, OpenCV and numba, no ROS, rosbags or yaml;
+    the frame layer is ROS-free too, and neither imports the layers above them (ros/, nodes/, bag/)."""
     package = Path(__file__).parents[1] / "stereo_depth" / layer
     found = {
         f"{path.relative_to(package.parent)}: {name}"
@@ -105,3 +119,38 @@ def test_layers_import_only_what_the_design_lets_them(layer: str, forbidden: tup
         if any(name == f or name.startswith(f"{f}.") for f in forbidden)
     }
     assert not found
+
+
+# The core's own thread helper: it runs the core's work (a half of a frame) on another core, never a caller's.
+OWN_WORK_RUNNERS = {"core/threads.py: OtherCore.submit(job)"}
+
+
+def _callable_parameters(path: Path, package: Path) -> set[str]:
+    """Each parameter annotated as a Callable (or an Optional one), of any function or method, nested ones
+    too, as "file: function(parameter)", a method's function named Class.method."""
+    tree = ast.parse(path.read_text())
+    owners = {
+        id(function): f"{owner.name}."
+        for owner in ast.walk(tree)
+        if isinstance(owner, ast.ClassDef)
+        for function in owner.body
+    }
+    found = set()
+    for function in ast.walk(tree):
+        if not isinstance(function, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        arguments = function.args
+        for argument in [*arguments.posonlyargs, *arguments.args, *arguments.kwonlyargs]:
+            if argument.annotation is not None and "Callable" in ast.unparse(argument.annotation):
+                name = f"{owners.get(id(function), '')}{function.name}({argument.arg})"
+                found.add(f"{path.relative_to(package.parent)}: {name}")
+    return found
+
+
+@pytest.mark.parametrize("layer", ["frames", "core"])
+def test_frame_layer_and_core_take_no_callable_from_their_callers(layer: str) -> None:
+    """Data flows down and returns: no function of the frame layer or the core takes a callback (a parameter
+    annotated as a Callable), so none of them can call back into a node or a command."""
+    package = Path(__file__).parents[1] / "stereo_depth" / layer
+    found = {name for path in package.rglob("*.py") for name in _callable_parameters(path, package)}
+    assert found - OWN_WORK_RUNNERS == set()

@@ -17,7 +17,7 @@ from ros_helpers import NodeProcess, RosHarness, reliable_qos, wait_until
 from sensor_msgs.msg import CompressedImage, Image
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.ros.stereo_io import QOS_FULL_RECHECK_S
+from stereo_depth.ros.node_base import QOS_FULL_RECHECK_S
 
 NS = "/qos"
 SPLIT = "/qos_split"

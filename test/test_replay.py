@@ -24,7 +24,6 @@ from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.messages import disparity_from_msg, stamp_to_ns
-from stereo_depth.options import OutputOptions
 
 from conftest import EUROC, euroc_sequence
 
@@ -146,14 +145,14 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
     filtered disparity bit for bit (a stereo_node of its own, fed through remaps)."""
     bag = tmp_path / "euroc30"
     assert main(["make-bag", str(euroc_sequence(tmp_path / "sequence", 30)), str(bag), "--rate", "10"]) == 0
-    options = ProcessOptions(outputs=("disparity",), output=OutputOptions(temporal_filter=True))
-    summary = process_bag(bag, tmp_path / "processed", make_params(), options)
+    params, options = make_params("default", {"temporal_filter": True}), ProcessOptions(outputs=("disparity",))
+    summary = process_bag(bag, tmp_path / "processed", params, options)
     offline = {
         stamp_to_ns(m.header.stamp): disparity_from_msg(m)
         for m in read_messages(tmp_path / "processed", [f"{NS}/disparity"])[f"{NS}/disparity"]
     }
     assert len(offline) == summary.frames_out == 30
-    persistence = options.output.temporal_persistence
+    persistence = params.temporal_persistence
     assert sum(np.isnan(d).all() for d in offline.values()) == persistence - 1  # nothing before frames agree
 
     namespace = "/temporal"

@@ -29,9 +29,8 @@ from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.formats.scenes import load_scene
-from stereo_depth.frames import StereoFrame, disparity_message, filter_over_time, match_frame
+from stereo_depth.frames import StereoFrame, disparity_message, filtered_disparity, match_frame
 from stereo_depth.messages import array_to_image, camera_info_to_msg, cloud_to_arrays, disparity_from_msg, make_header
-from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 from conftest import SCENES
@@ -278,10 +277,10 @@ def test_disparity_node_filters_over_time_as_process_and_stereo_node_do(
     ros: RosHarness, ros_env: dict[str, str], tmp_path: Path
 ) -> None:
     """`temporal_filter` on disparity_node: 12 noisy frames of a rectified pair give, bit for bit, the
-    disparity of `filter_over_time` after `match_frame`, the functions stereo_node and `process` run."""
+    disparity of `filtered_disparity` after `match_frame`, the stages stereo_node and `process` run."""
     frames = noisy_frames(12)
     stamps = [1_720_000_000 * 10**9 + k * 100_000_000 for k in range(len(frames))]
-    params, options = make_params("stereo_image_proc"), OutputOptions(temporal_filter=True)
+    params = make_params("stereo_image_proc", {"temporal_filter": True})
     camera, pipeline, temporal = StereoCamera(LEFT_INFO, RIGHT_INFO), StereoPipeline(params), TemporalFilter()
     expected, unfiltered = [], []
     for stamp, (left, right) in zip(stamps, frames, strict=True):
@@ -289,9 +288,9 @@ def test_disparity_node_filters_over_time_as_process_and_stereo_node_do(
         frame = StereoFrame(stamp, header, left, right, camera, rectified=True)
         result = match_frame(pipeline, frame)
         unfiltered.append(result.disparity.copy())
-        filter_over_time(temporal, frame, result, options)
-        expected.append(disparity_from_msg(disparity_message(RCLPY_TYPES, header, result.disparity, camera, params)))
-    assert all(np.isnan(d).all() for d in expected[: options.temporal_persistence - 1])  # not yet seen enough
+        disparity = filtered_disparity(temporal, frame, result, params)
+        expected.append(disparity_from_msg(disparity_message(RCLPY_TYPES, header, disparity, camera, params)))
+    assert all(np.isnan(d).all() for d in expected[: params.temporal_persistence - 1])  # not yet seen enough
     assert not np.array_equal(expected[-1], unfiltered[-1], equal_nan=True)  # the filter changed something
 
     namespace = "/sip_temporal"

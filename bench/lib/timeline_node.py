@@ -19,7 +19,9 @@ from typing import Any
 
 from stereo_depth.messages import SerializedMessage, stamp_to_ns
 from stereo_depth.nodes.stereo_node import StereoNode
-from stereo_depth.ros.stereo_io import run_node
+from stereo_depth.ros.input_pairing import InputPairing
+from stereo_depth.ros.node_base import FrameJob
+from stereo_depth.ros.node_main import run_node
 
 _EVENTS: dict[int, dict[str, int]] = {}  # input stamp -> event -> system clock ns
 _LOCK = threading.Lock()
@@ -39,24 +41,29 @@ def record(stamp_ns: int, event: str, at_ns: int | None = None) -> None:
         _EVENTS.setdefault(stamp_ns, {})[event] = time.time_ns() if at_ns is None else at_ns
 
 
-class TimelineNode(StereoNode):
-    def _on_message(self, index: int, msg: Any, sample: dict[str, int] | None) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        record(stamp, f"callback {index}")
-        if sample and sample.get("received_timestamp"):
-            record(stamp, f"dds {index}", sample["received_timestamp"])
-        super()._on_message(index, msg, sample)
-        record(stamp, f"callback end {index}")
+def _recorded_on_message(pairing: InputPairing, index: int, msg: Any, sample: dict[str, int] | None) -> None:
+    stamp = stamp_to_ns(msg.header.stamp)
+    record(stamp, f"callback {index}")
+    if sample and sample.get("received_timestamp"):
+        record(stamp, f"dds {index}", sample["received_timestamp"])
+    _on_message(pairing, index, msg, sample)
+    record(stamp, f"callback end {index}")
 
-    def _run_frame(self, job: tuple[int, int, float, tuple[Any, ...]]) -> None:
-        record(job[1], "worker")
+
+_on_message = InputPairing._on_message
+setattr(InputPairing, "_on_message", _recorded_on_message)  # noqa: B010 (each input's callback, timed)
+
+
+class TimelineNode(StereoNode):
+    def _run_frame(self, job: FrameJob) -> None:
+        record(job.stamp_ns, "worker")
         super()._run_frame(job)
 
-    def _publish(self, messages: dict[str, Any], stages: dict[str, float]) -> None:
+    def publish_outputs(self, messages: dict[str, Any], stages: dict[str, float], received_s: float) -> None:
         for name, message in messages.items():
             stamp = stamp_of(message)
             record(stamp, f"publish {name}")
-            super()._publish({name: message}, stages)
+            super().publish_outputs({name: message}, stages, received_s)
             record(stamp, f"published {name}")
 
 

@@ -1,7 +1,7 @@
 """A recorded stereo bag through the live node's pipeline, into a bag of results.
 
-The same frame functions (frames.py), `StereoPipeline` and synchronizer as `stereo_node`, so a bag
-processed here and the same bag replayed into the node give bit-identical outputs.
+The same FrameStream (stereo_depth.frames) and synchronizer as `stereo_node`, so a bag processed here
+and the same bag replayed into the node give bit-identical outputs.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import cv2
+import numpy as np
 
 from stereo_depth.bag.export import disparity_picture, write_ply
 from stereo_depth.bag.reader import ReadStats, StereoBagReader, TimeWindow, TopicChoice
@@ -22,19 +22,10 @@ from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import STAGES, StereoPipeline, StereoResult
+from stereo_depth.core.pipeline import STAGES, StereoResult
 from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.errors import BagError, StereoDepthError
-from stereo_depth.frames import (
-    DEFAULT_OUTPUTS,
-    Geometry,
-    InputNames,
-    OutputState,
-    decode_frame,
-    filter_over_time,
-    frame_outputs,
-    match_frame,
-)
+from stereo_depth.frames import DEFAULT_OUTPUTS, FrameOutputs, FrameStream, Geometry
 from stereo_depth.options import NodeOptions, OutputOptions
 from stereo_depth.sync import StereoSet
 
@@ -112,39 +103,6 @@ class ProcessSummary:
         return out
 
 
-class FrameMessages:
-    """One frame's outputs as `frame_outputs` hands them on, written only once the frame is complete
-    (a frame that fails in its cloud stage leaves nothing in the bag)."""
-
-    def __init__(self) -> None:
-        self.messages: dict[str, Any] = {}
-        self.geometry: Geometry | None = None
-
-    def images(self, messages: dict[str, Any]) -> None:
-        self.messages.update(messages)
-
-    def cloud(self, messages: dict[str, Any], geometry: Geometry | None) -> None:
-        self.messages.update(messages)
-        self.geometry = geometry
-
-
-def _lead_in(
-    pipeline: StereoPipeline,
-    inputs: StereoSet,
-    rectified: bool,
-    output: OutputOptions,
-    names: InputNames,
-    state: OutputState,
-) -> None:
-    """A frame before a shard's own: matched and fed to the temporal filter as one pass would, not written."""
-    try:
-        frame = decode_frame(inputs, pipeline, output, rectified=rectified, names=names)
-        result = match_frame(pipeline, frame, names)
-    except StereoDepthError:
-        return  # one pass skips it too
-    filter_over_time(state.temporal, frame, result, output)
-
-
 class Progress:
     """One `\r` line on stderr with frames/s, only when stderr is a terminal."""
 
@@ -170,6 +128,7 @@ def _export(
     index: int,
     stamp_ns: int,
     result: StereoResult,
+    disparity: np.ndarray,
     geometry: Geometry | None,
     params: StereoParams,
     options: ProcessOptions,
@@ -179,7 +138,7 @@ def _export(
     left = result.left_rect_color if result.left_rect_color is not None else result.left_rect
     if options.png_dir is not None:
         path = options.png_dir / f"{stem}.png"
-        cv2.imwrite(str(path), disparity_picture(left, result.disparity, params.min_disparity + params.disparity_range))
+        cv2.imwrite(str(path), disparity_picture(left, disparity, params.min_disparity + params.disparity_range))
         summary.pictures.append(path)
     wants_ply = options.ply_frames is None or index < options.ply_frames
     if options.ply_dir is not None and wants_ply and geometry is not None:
@@ -188,7 +147,7 @@ def _export(
         summary.clouds.append(path)
 
 
-FrameCallback = Callable[[int, StereoSet, StereoResult], None]
+FrameCallback = Callable[[int, StereoSet, FrameOutputs], None]
 
 
 def process_bag(
@@ -204,8 +163,6 @@ def process_bag(
     for folder in (options.png_dir, options.ply_dir):
         if folder is not None:
             folder.mkdir(parents=True, exist_ok=True)
-    types = rosbags_types()
-    pipeline = StereoPipeline(params)
     summary = ProcessSummary()
     start = time.perf_counter()
     with (
@@ -215,7 +172,7 @@ def process_bag(
             sync=options.sync,
             choice=options.topics,
             window=options.window,
-            lead_in_frames=lead_in_frames(options.output.temporal_history) if options.output.temporal_filter else 0,
+            lead_in_frames=lead_in_frames(params.temporal_history) if params.temporal_filter else 0,
         ) as reader,
         BagWriter(
             out_bag,
@@ -226,45 +183,36 @@ def process_bag(
         ) as writer,
     ):
         topics = reader.topics
-        names = topics.input_names
+        # its cloud buffer: the writer serializes each message before the next frame
+        stream = FrameStream(
+            rosbags_types(), params, options.output, rectified=topics.rectified, names=topics.input_names
+        )
         progress = Progress(reader.count(topics.names[0]), options.progress)
-        state = OutputState()  # its cloud buffer: the writer serializes each message before the next frame
         for inputs in reader.frames():
             if inputs.lead_in:  # a shard's frames before its first: only to fill the temporal filter
-                _lead_in(pipeline, inputs, topics.rectified, options.output, names, state)
+                stream.lead_in(inputs)
                 continue
-            out = FrameMessages()
             try:
-                frame = decode_frame(inputs, pipeline, options.output, rectified=topics.rectified, names=names)
-                result = match_frame(pipeline, frame, names)
-                frame_outputs(
-                    types,
-                    pipeline,
-                    frame,
-                    result,
-                    params,
-                    options.output,
-                    options.outputs,
-                    state,
-                    out.images,
-                    out.cloud,
-                    with_geometry=options.ply_dir is not None,
-                )
+                out = stream.match(inputs, options.outputs, with_geometry=options.ply_dir is not None)
+                cloud = out.cloud.run() if out.cloud is not None else None  # written only once the frame is whole
             except StereoDepthError as exc:
                 summary.skipped[str(exc)] += 1
                 continue
-            reason = frame.camera.no_depth_reason
+            reason = out.frame.camera.no_depth_reason
             if reason is not None and reason not in summary.warnings:
                 summary.warnings.append(reason)
-            for name, message in out.messages.items():
+            messages = {**out.images, **(cloud.messages if cloud is not None else {})}
+            for name, message in messages.items():
                 writer.write(topics.output(name), message, inputs.stamp_ns)
                 if topics.output(name) not in summary.topics:
                     summary.topics.append(topics.output(name))
-            for stage, ms in result.timings_ms.items():
+            stage_ms = {**out.stage_ms, **(cloud.stage_ms if cloud is not None else {})}
+            for stage, ms in stage_ms.items():
                 summary.stage_ms[stage] = summary.stage_ms.get(stage, 0.0) + ms  # "temporal" only when on
-            _export(summary.frames_out, inputs.stamp_ns, result, out.geometry, params, options, summary)
+            geometry = cloud.geometry if cloud is not None else None
+            _export(summary.frames_out, inputs.stamp_ns, out.result, out.disparity, geometry, params, options, summary)
             if on_frame is not None:
-                on_frame(summary.frames_out, inputs, result)
+                on_frame(summary.frames_out, inputs, out)
             summary.frames_out += 1
             progress.update(summary.frames_out)
         progress.close()

@@ -1,4 +1,4 @@
-"""Message classes of the rosbags typestore (ROS 2 Jazzy), as the `MessageTypes` that messages.py takes.
+"""Message classes of the rosbags typestore (ROS 2 Jazzy), as the `MessageTypes` that stereo_depth.messages takes.
 
 Bags are read and written without an rclpy install: rosbags generates Jazzy's message classes as
 dataclasses, and their CDR bytes are the ones a live Jazzy publisher sends.

@@ -16,8 +16,9 @@ from stereo_depth.bag.process import FrameCallback, ProcessOptions, ProcessSumma
 from stereo_depth.commands.common import add_param_options
 from stereo_depth.commands.process import settings_from
 from stereo_depth.core.metrics import accuracy
-from stereo_depth.core.pipeline import StereoResult
+from stereo_depth.core.params import StereoParams
 from stereo_depth.errors import BagError
+from stereo_depth.frames import FrameOutputs
 from stereo_depth.options import Settings
 from stereo_depth.sync import StereoSet
 
@@ -33,7 +34,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def _process(
-    name: str, args: argparse.Namespace, settings: Settings, on_frame: FrameCallback | None = None
+    name: str,
+    args: argparse.Namespace,
+    params: StereoParams,
+    settings: Settings,
+    on_frame: FrameCallback | None = None,
 ) -> ProcessSummary:
     source = args.bags / name
     if not source.is_dir():
@@ -46,8 +51,7 @@ def _process(
         ply_dir=args.out / f"{name}_ply",
         ply_frames=1,
     )
-    assert settings.stereo is not None
-    summary = process_bag(source, args.out / name, settings.stereo, options, on_frame)
+    summary = process_bag(source, args.out / name, params, options, on_frame)
     print(f"\n== {source} -> {args.out / name}")
     for line in summary.lines():
         print(line)
@@ -56,30 +60,30 @@ def _process(
     return summary
 
 
-def _middlebury_accuracy(args: argparse.Namespace, settings: Settings) -> None:
+def _middlebury_accuracy(args: argparse.Namespace, params: StereoParams, settings: Settings) -> None:
     truth = read_ground_truth_index(args.bags / "middlebury_gt")
     rows: list[str] = []
 
-    def check(index: int, frame: StereoSet, result: StereoResult) -> None:
+    def check(index: int, frame: StereoSet, out: FrameOutputs) -> None:
         gt = truth.get(frame.stamp_ns)
         if gt is not None:
-            acc = accuracy(result.disparity, gt.disparity, gt.mask)
+            acc = accuracy(out.disparity, gt.disparity, gt.mask)
             rows.append(
                 f"  {gt.scene:30s} bad-2 {acc.bad2:6.1%}  bad-2 of estimated {acc.bad2_est:6.1%}  "
                 f"density {acc.density:6.1%}"
             )
 
-    _process("middlebury", args, settings, check)
+    _process("middlebury", args, params, settings, check)
     print("accuracy against Middlebury ground truth (non-occluded pixels):")
     print("\n".join(rows) if rows else "  no frame matched the ground truth stamps")
 
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    settings = settings_from(args)  # refuse bad parameters before any work
+    params, settings = settings_from(args)  # refuse bad parameters before any work
     args.out.mkdir(parents=True, exist_ok=True)
-    euroc = _process("euroc_raw", args, settings)
-    _middlebury_accuracy(args, settings)
+    euroc = _process("euroc_raw", args, params, settings)
+    _middlebury_accuracy(args, params, settings)
     if euroc.pictures:
         print(f"\nlook first at {euroc.pictures[len(euroc.pictures) // 2]}")
     print(f"demo done in {time.perf_counter() - start:.1f} s; everything is under {args.out}/")

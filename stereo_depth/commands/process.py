@@ -15,7 +15,7 @@ from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import add_option_flags, add_param_options, add_topic_options, topic_choice
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.option_fields import option_names
-from stereo_depth.core.params import COMPAT_ALIASES, field_names, make_params, parse_assignments
+from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
 from stereo_depth.errors import ParameterError
 from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS, camera_fixes
 from stereo_depth.options import (
@@ -110,10 +110,11 @@ def _ros_parameters(node: Any) -> list[dict[str, Any]]:
     return [section for value in node.values() for section in _ros_parameters(value)]
 
 
-def settings_from(args: argparse.Namespace) -> Settings:
-    """What `process` (and `demo`) run with: --profile, then --params FILE (read here, once), then --set
-    and the sync flags on top. An unknown --set name is an error; keys of the file that no stereo_depth
-    node knows (it may configure other nodes too) get one warning line."""
+def settings_from(args: argparse.Namespace) -> tuple[StereoParams, Settings]:
+    """What `process` (and `demo`) run with, the processing parameters and the rest: --profile, then
+    --params FILE (read here, once), then --set and the sync flags on top. An unknown --set name is an
+    error; keys of the file that no stereo_depth node knows (it may configure other nodes too) get one
+    warning line."""
     from_file = read_params_file(args.params) if getattr(args, "params", None) else {}
     assignments = parse_assignments(args.assignments)
     stereo_names = {*field_names(), *COMPAT_ALIASES}
@@ -129,7 +130,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
         print(f"WARNING: --params {args.params}: {line}", file=sys.stderr)
     flags = {name: getattr(args, name, None) for name in SYNC_OPTIONS}
     sync = node_options({**from_file, **{k: v for k, v in flags.items() if v is not None}})
-    return Settings(stereo, sync, output_options(values))
+    return stereo, Settings(stereo, sync, output_options(values))
 
 
 def options_from(args: argparse.Namespace, settings: Settings) -> ProcessOptions:
@@ -157,9 +158,8 @@ def interrupt_on_sigterm() -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = settings_from(args)
-    assert settings.stereo is not None
-    params, options = settings.stereo, options_from(args, settings)
+    params, settings = settings_from(args)
+    options = options_from(args, settings)
     fixes = camera_fixes(options.output)
     if fixes is not None:
         print(f"inputs corrected: {fixes}", file=sys.stderr)

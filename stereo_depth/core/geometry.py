@@ -67,3 +67,25 @@ def depth_to_points(depth: np.ndarray, rays: Rays) -> np.ndarray:
     """Organized (H, W, 3) float32 XYZ: `point_planes` interleaved."""
     points: np.ndarray = cv2.merge(point_planes(depth, rays))
     return points
+
+
+def voxel_thinned(xyz: np.ndarray, rgb: np.ndarray | None, size: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point per occupied cube of edge `size` (metres): the centroid of its points, and the colour
+    of one of them (a mean of packed colours would be no colour at all). Sorting by cube is the cost."""
+    if len(xyz) == 0:
+        return xyz, rgb
+    scale = np.float32(1.0 / size)
+    ids = np.zeros(len(xyz), np.int64)
+    for axis in range(3):  # column by column: reductions over an (N, 3) array's axis 0 are slow
+        cell = np.floor(xyz[:, axis] * scale).astype(np.int64)
+        low = cell.min()
+        ids *= cell.max() - low + 1
+        ids += cell - low
+    order = np.argsort(ids)
+    ids = ids[order]
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    counts = np.diff(np.r_[starts, len(ids)])
+    centroids = np.empty((len(starts), 3), np.float32)
+    for axis in range(3):
+        centroids[:, axis] = np.add.reduceat(xyz[order, axis], starts, dtype=np.float64) / counts
+    return centroids, rgb[order[starts]] if rgb is not None else None

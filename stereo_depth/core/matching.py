@@ -110,10 +110,8 @@ class OpenCVBands:
     row: BM's last valid row depends on the parity of the image's height), one object per half (OpenCV's
     matchers keep working buffers between calls)."""
 
-    def __init__(
-        self, params: StereoParams, build: Callable[[StereoParams, int], cv2.StereoMatcher], overlap: int
-    ) -> None:
-        self._matchers = (build(params, 0), build(params, 0))  # speckles: SplitSpeckleFilter
+    def __init__(self, matchers: tuple[cv2.StereoMatcher, cv2.StereoMatcher], overlap: int) -> None:
+        self._matchers = matchers
         self._overlap = overlap
 
     def prepare(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -193,13 +191,13 @@ def create_bm(params: StereoParams, *, our_kernels: bool | None = None) -> Match
     its speckle range in 1/16 px (StereoSGBM in pixels), as stereo_image_proc passes it."""
     reach = params.correlation_window_size // 2 + params.prefilter_size // 2 + 1
     ours = use_our_bm(params) if our_kernels is None else our_kernels and numba_bm_applies(params)
-    bands = BlockMatcher(params) if ours else OpenCVBands(params, opencv_bm, reach)
+    bands = BlockMatcher(params) if ours else OpenCVBands((opencv_bm(params, 0), opencv_bm(params, 0)), reach)
     return Halves(bands, params, params.speckle_range, 4 * reach)
 
 
 def create_sgbm(params: StereoParams) -> Matcher:
     if params.sgbm_mode in ONE_CORE_SGBM_MODES:
-        bands = OpenCVBands(params, opencv_sgbm, STRIP_OVERLAP)
+        bands = OpenCVBands((opencv_sgbm(params, 0), opencv_sgbm(params, 0)), STRIP_OVERLAP)
         return Halves(bands, params, 16 * params.speckle_range, 4 * STRIP_OVERLAP)
     return OpenCVMatcher(opencv_sgbm(params, params.speckle_size), params.min_disparity)
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stereo_depth.core.option_fields import coerce, coerced, option, option_names, range_problems
+from stereo_depth.core.temporal import TemporalSettings
 from stereo_depth.errors import ParameterError
 
 SGBM_MODES = {0: "SGBM", 1: "HH", 2: "SGBM_3WAY", 3: "HH4"}
@@ -80,6 +81,43 @@ class StereoParams:
         choices=("full", "processed"),
     )
 
+    temporal_filter: bool = option(
+        False,
+        "Filter the disparity over time before depth and points2: a pixel is output only when it agrees "
+        "with temporal_persistence of the last temporal_history frames (no ghost points)",
+    )
+    temporal_alpha: float = option(
+        0.2, "Temporal filter: the newest frame's weight in the per-pixel exponential average", 0.01, 1.0
+    )
+    temporal_delta: float = option(
+        2.0,
+        "Temporal filter: values within this many px agree (one surface); a value farther from the "
+        "pixel's newest restarts its average",
+        0.0,
+        1e3,
+    )
+    temporal_persistence: int = option(
+        4, "Temporal filter: frames of temporal_history a pixel must agree in to be output", 1, 8, 1
+    )
+    temporal_history: int = option(8, "Temporal filter: frames remembered per pixel", 1, 8, 1)
+    temporal_motion_reset: float = option(
+        0.0,
+        "Temporal filter: restart every pixel when more than this share of them changed at once "
+        "(the camera moved fast; 0 = off)",
+        0.0,
+        1.0,
+    )
+
+    @property
+    def temporal(self) -> TemporalSettings:
+        return TemporalSettings(
+            self.temporal_alpha,
+            self.temporal_delta,
+            self.temporal_persistence,
+            self.temporal_history,
+            self.temporal_motion_reset,
+        )
+
     def validate(self) -> StereoParams:
         """Refuse values that OpenCV would reject or silently change, with the reason."""
         checks: list[tuple[bool, str]] = [
@@ -109,6 +147,7 @@ class StereoParams:
         for ok, reason in checks:
             if not ok:
                 raise ParameterError(reason)
+        self.temporal.validate()
         return self
 
     def _cost_limits(self) -> list[tuple[bool, str]]:

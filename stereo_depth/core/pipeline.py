@@ -11,6 +11,7 @@ import dataclasses
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -23,6 +24,7 @@ from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
 from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.core.temporal import compile_kernels as compile_temporal_kernels
 from stereo_depth.errors import ImageError
 
 STAGES = ("rectify", "match", "filter", "depth", "points")
@@ -114,13 +116,6 @@ class StereoPipeline:
     def set_params(self, params: StereoParams) -> None:
         """Swap parameters in one assignment: a frame sees the old set or the new one."""
         self._params = params.validate()
-
-    def load_kernels(self) -> None:
-        """The numba kernels our BM runs for these parameters, compiled or loaded from numba's cache now (a
-        second or two) rather than on the first frame, which would wait for them."""
-        params = _scaled(self._params, self._params.downsample)
-        if params.matcher == "bm" and use_our_bm(params):
-            compile_bm_kernels((params.disparity_range,))
 
     def camera_for(self, left: CameraInfo, right: CameraInfo) -> StereoCamera:
         """The StereoCamera for this calibration; rebuilt (maps included) only when it changes."""
@@ -228,6 +223,36 @@ class StereoPipeline:
         if key not in self._rays:
             self._rays = {key: Rays.for_camera(camera)}
         return self._rays[key]
+
+
+class CensusCoreLoad(NamedTuple):
+    """How the census core's machine code came: in how long, and from which numba cache."""
+
+    seconds: float
+    cache: str
+
+
+def warm_up_kernels(params: StereoParams | None) -> CensusCoreLoad | None:
+    """Every numba kernel a stream of these parameters runs, compiled or loaded from numba's cache now,
+    before its first input, rather than on the first frame, which would wait for them (a node drops the
+    frames arriving meanwhile): the temporal filter's, the census core's (about a second from the cache,
+    one to two minutes on the first start after installing) and our BM's for this disparity count. A
+    matcher switched to at run time still loads on its first frame. Returns the census core's load, or
+    None when these parameters do not use it."""
+    if params is not None and params.temporal_filter:
+        compile_temporal_kernels()
+    census = None
+    if params is not None and params.matcher == "census_sgm":
+        from stereo_depth.core.census_sgm import compile_kernels as load_census_core  # numba: census streams only
+
+        start = time.perf_counter()
+        cache = load_census_core()
+        census = CensusCoreLoad(time.perf_counter() - start, cache)
+    if params is not None:
+        scaled = _scaled(params, params.downsample)
+        if scaled.matcher == "bm" and use_our_bm(scaled):
+            compile_bm_kernels((scaled.disparity_range,))
+    return census
 
 
 def _scaled(params: StereoParams, factor: int) -> StereoParams:

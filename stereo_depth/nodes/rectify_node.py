@@ -7,7 +7,6 @@ exactly the pixels stereo_node matches. R is applied even when every distortion 
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import cv2
 import numpy as np
@@ -16,9 +15,11 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_depth.core.camera import CameraInfo as Calibration
 from stereo_depth.core.camera import build_rectification_maps, check_camera_info, needs_rectification
 from stereo_depth.errors import CalibrationError
+from stereo_depth.frames import decode_image, named_errors
 from stereo_depth.messages import array_to_image, camera_info_from_msg
 from stereo_depth.options import INPUT_OPTIONS, Settings
-from stereo_depth.ros.stereo_io import StereoIONode, run_node, timed
+from stereo_depth.ros.node_base import FrameJob, StereoIONode, timed
+from stereo_depth.ros.node_main import run_node
 from stereo_depth.ros.types import RCLPY_TYPES
 
 
@@ -35,11 +36,14 @@ class RectifyNode(StereoIONode):
         self._maps: tuple[Calibration, tuple[np.ndarray, np.ndarray] | None] | None = None
         self._rect = self.declared_output("image_rect")
 
-    def process(self, stamp_ns: int, messages: tuple[Any, ...], settings: Settings) -> dict[str, float]:
-        image_msg, info_msg = messages
+    def process(self, job: FrameJob, settings: Settings) -> dict[str, float]:
+        image_msg, info_msg = job.messages
         start = time.perf_counter()
-        image = self.read_image(0, image_msg, settings)
-        maps = self._maps_for(self.read_input(1, camera_info_from_msg, info_msg), image.shape)
+        with named_errors(self.topics[0]):
+            image = decode_image(image_msg, settings.output.max_image_pixels)
+        with named_errors(self.topics[1]):
+            info = camera_info_from_msg(info_msg)
+        maps = self._maps_for(info, image.shape)
         stages: dict[str, float] = {}
         timed(stages, "decode", start)
         start = time.perf_counter()
@@ -47,7 +51,7 @@ class RectifyNode(StereoIONode):
         timed(stages, "rectify", start)
         start = time.perf_counter()
         self._rect.publish(array_to_image(RCLPY_TYPES, image_msg.header, rectified))
-        self.published("image_rect")
+        self.published("image_rect", job.received_s)
         timed(stages, "publish", start)
         return stages
 

@@ -19,7 +19,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
 
 from stereo_depth.nodes.stereo_node import StereoNode
-from stereo_depth.ros.stereo_io import run_node
+from stereo_depth.ros.node_main import run_node
 
 
 class StereoLifecycleNode(StereoNode, LifecycleNode):
@@ -90,8 +90,8 @@ class StereoLifecycleNode(StereoNode, LifecycleNode):
     def _now_holds(self) -> str:
         """What the node holds after a transition, for the log: the test and the user see the releases."""
         return (
-            f"matcher {'built' if self.pipeline is not None else 'none'}, "
-            f"{len(self._outputs)} publishers, {len(self._inputs)} subscriptions, "
+            f"matcher {'built' if self.configured else 'none'}, "
+            f"{len(self._outputs)} publishers, {self.subscriptions_held} subscriptions, "
             f"workers {'running' if self._worker is not None else 'stopped'}"
         )
 

@@ -1,57 +1,35 @@
-"""One frame from four input messages to output messages: the one path of the live nodes and `process`.
-
-stereo_node's two worker stages, disparity_node, point_cloud_node, `stereo-depth process` and
-`check-calibration` all call these functions, so live and offline outputs agree by construction,
-option for option:
-
-- `decode_frame`: a `StereoSet` (the synchronizer's four inputs, by name) -> `StereoFrame`, sizes
-  checked and every error naming the input it is about;
-- `match_frame`, then `frame_outputs`: the two stages in order, the node's and `process`'s:
-- `image_outputs`: what matching gives (left/image_rect(_color), disparity, confidence);
-- `geometry_outputs`: what depth gives (depth, its compressedDepth, points2, points2_clearing), one
-  cloud builder for all.
-
-ROS-free: messages of either flavour (rclpy or rosbags) go in, messages of the caller's `MessageTypes`
-come out (see messages.py).
-"""
+"""What a frame's outputs are built from and how: the image messages of matching, the temporal filter,
+and the messages of depth (depth limits, mask, clearing points, points2) with the state a stream keeps
+for them between frames."""
 
 from __future__ import annotations
 
 import dataclasses
 import threading
-import time
-from collections.abc import Callable, Collection
-from dataclasses import dataclass
-from typing import Any, NamedTuple, TypeVar
+from collections.abc import Collection
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
-from stereo_depth.core.camera import StereoCamera, rectified_input, with_baseline
-from stereo_depth.core.geometry import Rays
+from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.geometry import Rays, disparity_to_depth
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
 from stereo_depth.core.temporal import TemporalFilter
-from stereo_depth.errors import CalibrationError, ImageError, StereoDepthError
+from stereo_depth.errors import ImageError
+from stereo_depth.frames.decode import StereoFrame
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
-    DEFAULT_MAX_PIXELS,
     MessageBuffer,
     MessageTypes,
     array_to_image,
-    camera_info_from_msg,
     camera_info_to_msg,
-    compressed_to_pipeline,
     depth_to_cloud,
     depth_to_compressed_depth,
     disparity_to_msg,
-    image_to_pipeline,
-    stamp_to_ns,
 )
 from stereo_depth.options import OutputOptions
-from stereo_depth.sync import StereoSet
-
-T = TypeVar("T")
 
 # Output names, relative to the node's namespace (the topics stereo_node publishes).
 IMAGE_OUTPUTS = ("left/image_rect", "left/image_rect_color", "disparity", "confidence")
@@ -65,165 +43,16 @@ MM_PER_M = 1000.0
 UINT16_MAX = 65535
 
 
-class InputNames(NamedTuple):
-    """What errors call each input of a StereoSet: its topic live and offline, these words otherwise."""
-
-    left_image: str = "left image"
-    left_info: str = "left camera_info"
-    right_image: str = "right image"
-    right_info: str = "right camera_info"
-
-
-INPUT_NAMES = InputNames()  # when the caller has no topic names
-
-
-@dataclass(frozen=True)
-class StereoFrame:
-    """The inputs of one frame, decoded: what the pipeline matches and the outputs copy."""
-
-    stamp_ns: int
-    header: Any  # the left image's header, copied onto every output
-    left: np.ndarray  # as the pipeline takes them: mono (8 or 16 bit) or BGR
-    right: np.ndarray | None  # None: the set had no right image (point_cloud_node reads a disparity instead)
-    camera: StereoCamera  # the pipeline's cached camera for this calibration
-    rectified: bool  # the images are rectified already (image_rect inputs)
-
-
-def named(name: str, convert: Callable[..., T], *args: Any) -> T:
-    """`convert(*args)`, with `name` (a topic) in front of any error it raises."""
-    try:
-        return convert(*args)
-    except StereoDepthError as exc:
-        raise type(exc)(f"{name}: {exc}") from exc
-
-
-def decode_image(msg: Any, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
-    """An input image message as the pipeline takes it: the one place input images are decoded.
-
-    A sensor_msgs/CompressedImage (it has a format, no encoding: image_transport's `compressed`, JPEG or
-    PNG) is decoded here, once per image, on whichever thread processes the frame (cv2.imdecode
-    releases the GIL, so a node keeps receiving meanwhile)."""
-    if not hasattr(msg, "encoding"):
-        return compressed_to_pipeline(msg, max_pixels)
-    return image_to_pipeline(msg, max_pixels)
-
-
-def frame_camera(
-    pipeline: StereoPipeline,
-    left_info: Any,
-    right_info: Any,
-    names: tuple[str, str],
-    *,
-    rectified: bool,
-    baseline: float = 0.0,
-) -> StereoCamera:
-    """The pipeline's cached StereoCamera for two camera_info messages; errors name both.
-
-    `rectified`: the images are rectified already, so a camera_info with only P set will do;
-    `baseline` (metres, 0 = as published) replaces the right P[0,3] the driver got wrong."""
-    left = named(names[0], camera_info_from_msg, left_info)
-    right = named(names[1], camera_info_from_msg, right_info)
-    if rectified:
-        left, right = rectified_input(left), rectified_input(right)
-    if baseline > 0:
-        right = with_baseline(right, baseline)
-    try:
-        return pipeline.camera_for(left, right)
-    except StereoDepthError as exc:
-        raise type(exc)(f"{exc} (left = {names[0]}, right = {names[1]})") from exc
-
-
-def decode_frame(
-    inputs: StereoSet,
-    pipeline: StereoPipeline,
-    options: OutputOptions,
-    *,
-    rectified: bool,
-    names: InputNames = INPUT_NAMES,
-) -> StereoFrame:
-    """A matched set's images and calibration, sizes checked; `names` (the topics) name the input each
-    error is about, so a user knows which driver to fix."""
-    if options.swap_left_right:
-        inputs, names = swapped(inputs), swapped(names)
-    left = named(names.left_image, decode_image, inputs.left_image, options.max_image_pixels)
-    (lh, lw), images, right = left.shape[:2], f"{names.left_image} is", None
-    if inputs.right_image is not None:
-        right = named(names.right_image, decode_image, inputs.right_image, options.max_image_pixels)
-        rh, rw = right.shape[:2]
-        if (lh, lw) != (rh, rw):
-            msg = (
-                f"{names.left_image} is {lw}x{lh} but {names.right_image} is {rw}x{rh}; both cameras must "
-                "stream one resolution (check each driver's mode, binning and ROI)"
-            )
-            raise ImageError(msg)
-        images = f"{names.left_image} and {names.right_image} are"
-    camera = frame_camera(
-        pipeline,
-        inputs.left_info,
-        inputs.right_info,
-        (names.left_info, names.right_info),
-        rectified=rectified,
-        baseline=options.baseline,
-    )
-    if (lw, lh) != (camera.width, camera.height):
-        msg = (
-            f"{images} {lw}x{lh} but {names.left_info} and {names.right_info} "
-            f"say {camera.width}x{camera.height}; publish the calibration of this camera mode"
-        )
-        raise CalibrationError(msg)
-    header = inputs.left_image.header
-    return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
-
-
-SwappableT = TypeVar("SwappableT", StereoSet, InputNames)
-
-
-def swapped(inputs: SwappableT) -> SwappableT:
-    """A stereo set, or its names, read the other way round (swap_left_right)."""
-    other = {
-        "left_image": inputs.right_image,
-        "left_info": inputs.right_info,
-        "right_image": inputs.left_image,
-        "right_info": inputs.left_info,
-    }
-    if isinstance(inputs, InputNames):
-        return inputs._replace(**other)
-    return dataclasses.replace(inputs, **other)
-
-
-def camera_fixes(options: OutputOptions) -> str | None:
-    """The line a node or `process` logs once at start when the user corrects the driver's inputs."""
-    fixes = []
-    if options.baseline > 0:
-        fixes.append(f"baseline {options.baseline} m replaces the right camera_info's P[0,3]")
-    if options.swap_left_right:
-        fixes.append("swap_left_right: the left topics are read as the right camera and the right ones as the left")
-    return "; ".join(fixes) if fixes else None
-
-
-def match_frame(pipeline: StereoPipeline, frame: StereoFrame, names: InputNames = INPUT_NAMES) -> StereoResult:
-    """Rectify, match and filter one frame (`pipeline.match`); errors name both image inputs."""
-    assert frame.right is not None, "a frame without a right image cannot be matched"
-    try:
-        return pipeline.match(frame.left, frame.right, frame.camera, rectified=frame.rectified)
-    except StereoDepthError as exc:
-        raise type(exc)(f"{names.left_image} and {names.right_image}: {exc}") from exc
-
-
-def filter_over_time(
-    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, options: OutputOptions
-) -> None:
-    """`temporal_filter`: the frame's disparity replaced by its temporally filtered one (timed as stage
-    "temporal"), so disparity, depth and points2 all carry it. Call it once per frame in stamp order,
-    after matching and before the outputs; off, it forgets what it had seen."""
-    if not options.temporal_filter:
+def filtered_disparity(
+    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, params: StereoParams
+) -> np.ndarray:
+    """`temporal_filter`: the frame's disparity filtered over time, which disparity, depth and points2 all
+    carry (the matcher's own stays in `result`). Call it once per frame in stamp order, after matching and
+    before the outputs; off, it forgets what it had seen and gives the matcher's disparity."""
+    if not params.temporal_filter:
         temporal.reset()
-        return
-    start = time.perf_counter()
-    result.disparity = temporal.apply(
-        result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), options.temporal
-    )
-    result.timings_ms["temporal"] = (time.perf_counter() - start) * 1000.0
+        return result.disparity
+    return temporal.apply(result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), params.temporal)
 
 
 # ---------------------------------------------------------------- match outputs
@@ -268,13 +97,14 @@ def image_outputs(
     types: MessageTypes,
     header: Any,
     result: StereoResult,
+    disparity: np.ndarray,
     params: StereoParams,
     wanted: Collection[str],
     disparity_buffer: MessageBuffer | None = None,
 ) -> dict[str, Any]:
     """The messages matching gives, by output name: those in `wanted` that this frame has (the colour
-    image needs a colour input, confidence a matcher that gives one); the disparity's data in
-    `disparity_buffer` when given."""
+    image needs a colour input, confidence a matcher that gives one); `disparity` is the frame's (after
+    the temporal filter), its data in `disparity_buffer` when given."""
     assert result.camera is not None
     arrays: dict[str, tuple[np.ndarray | None, str | None]] = {
         "left/image_rect": (result.left_rect, None),
@@ -286,7 +116,7 @@ def image_outputs(
         if name not in wanted:
             continue
         if name == "disparity":
-            messages[name] = disparity_message(types, header, result.disparity, result.camera, params, disparity_buffer)
+            messages[name] = disparity_message(types, header, disparity, result.camera, params, disparity_buffer)
             continue
         pixels, encoding = arrays[name]
         if pixels is not None:
@@ -358,7 +188,7 @@ class CloudRate:
 class OutputState:
     """What one stream of frames keeps between frames for its outputs: the rectified mask, the
     organized cloud's and the disparity's bytes, the stamp of the last cloud (points_max_rate) and the
-    temporal filter's history (touched only where frames are in stamp order: `filter_over_time`)."""
+    temporal filter's history (touched only where frames are in stamp order: `filtered_disparity`)."""
 
     def __init__(self) -> None:
         self.temporal = TemporalFilter()
@@ -381,17 +211,23 @@ class Geometry(NamedTuple):
 
 
 def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: StereoResult) -> Geometry:
-    """Depth of a `match` result (`pipeline.add_geometry`; the points go straight into the cloud)."""
+    """Depth of a `match` result, its disparity as matched."""
     assert result.camera is not None
-    pipeline.add_geometry(result, want_points=False)
-    assert result.depth is not None
     image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
+    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image)
+
+
+def disparity_geometry(
+    pipeline: StereoPipeline, frame: StereoFrame, camera: StereoCamera, disparity: np.ndarray, image: np.ndarray
+) -> Geometry:
+    """Depth of a frame's disparity (not offset-adjusted, at the size of `camera`); the pixels matched at
+    the smallest disparity searched are marked for points2_clearing."""
+    depth = disparity_to_depth(disparity, camera)
     params = pipeline.params
     step = 1 if params.downsample_output == "processed" else params.downsample  # one matcher step, output px
     with np.errstate(invalid="ignore"):  # NaN: not matched
-        saturated = result.disparity < np.float32(output_params(params).min_disparity + step)
-    rays = pipeline.rays_for(result.camera)
-    return Geometry(result.depth, result.camera, rays, image, frame.camera, saturated)
+        saturated = disparity < np.float32(output_params(params).min_disparity + step)
+    return Geometry(depth, camera, pipeline.rays_for(camera), image, frame.camera, saturated)
 
 
 def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:
@@ -399,7 +235,7 @@ def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedM
     disparity searched (as far as the matcher sees, or farther: their depth may be infinite), each at
     its depth clamped to clearing_max_depth. Such pixels never reach depth or points2 when beyond
     max_depth; the mask and min_depth still hold them back, and so does glare (`near_saturation`). Call
-    before `limit_depth`."""
+    before `limited_depth`."""
     depth = geometry.depth
     with np.errstate(invalid="ignore"):
         far = depth > np.float32(options.max_depth) if options.max_depth > 0 else np.zeros(depth.shape, bool)
@@ -425,10 +261,13 @@ def near_saturation(image: np.ndarray) -> np.ndarray:
     return cv2.dilate(saturated.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
-def limit_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> None:
-    """min_depth, max_depth and mask_image: the pixels they exclude become invalid (NaN) in the depth,
-    in place, so neither depth nor points2 has them; the disparity stays as matched."""
+def limited_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:
+    """min_depth, max_depth and mask_image: the depth without the pixels they exclude (NaN), so neither
+    depth nor points2 has them; the disparity stays as matched. The geometry's own depth is kept."""
     depth = geometry.depth
+    if not (options.min_depth > 0 or options.max_depth > 0 or options.mask_image):
+        return depth
+    depth = depth.copy()
     with np.errstate(invalid="ignore"):
         if options.min_depth > 0:
             depth[depth < np.float32(options.min_depth)] = np.nan
@@ -436,6 +275,7 @@ def limit_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMask
             depth[depth > np.float32(options.max_depth)] = np.nan
     if options.mask_image:
         depth[~masks.get(options.mask_image, geometry.raw_camera, depth.shape)] = np.nan
+    return depth
 
 
 def depth_pixels(depth: np.ndarray, encoding: str) -> np.ndarray:
@@ -464,13 +304,14 @@ def geometry_outputs(
     state: OutputState,
 ) -> dict[str, Any]:
     """depth, depth/camera_info and points2 by output name, those in `wanted`, with the depth limits
-    and the mask applied. An organized points2 has its x, y, z computed straight into the message.
+    and the mask applied (`limited_depth`). An organized points2 has its x, y, z computed straight into
+    the message.
 
     `state`: the caller's own for this stream; its cloud buffer is reused frame to frame, so hand the
     cloud on (publish, write) before the next call.
     """
     clearing = clearing_depth(geometry, options, state.masks) if "points2_clearing" in wanted else None
-    limit_depth(geometry, options, state.masks)
+    geometry = geometry._replace(depth=limited_depth(geometry, options, state.masks))
     messages: dict[str, Any] = {}
     if {"depth", "depth/compressedDepth"} & set(wanted):
         pixels = depth_pixels(geometry.depth, options.depth_encoding)
@@ -513,52 +354,3 @@ def geometry_outputs(
             organized=False,
         )
     return messages
-
-
-# ---------------------------------------------------------------- the two stages in order
-
-
-def run_now(stage: Callable[[], None]) -> None:
-    stage()
-
-
-def frame_outputs(
-    types: MessageTypes,
-    pipeline: StereoPipeline,
-    frame: StereoFrame,
-    result: StereoResult,
-    params: StereoParams,
-    output: OutputOptions,
-    wanted: Collection[str],
-    state: OutputState,
-    send_images: Callable[[dict[str, Any]], None],
-    send_cloud: Callable[[dict[str, Any], Geometry | None], None],
-    *,
-    run_cloud_stage: Callable[[Callable[[], None]], None] = run_now,
-    with_geometry: bool = False,
-) -> None:
-    """What follows `match_frame`, in stereo_node's order, for the node and `process` alike: the image
-    outputs in `wanted` go to `send_images` at once; then the cloud stage builds those of depth,
-    depth/camera_info and points2 in `wanted` that are due (points_max_rate), with the geometry they
-    come from, for `send_cloud`, which ends the frame. `run_cloud_stage` runs that stage: at once
-    (`process`) or on the node's second thread. Nothing due (and no `with_geometry`, which a PLY
-    needs): `send_cloud({}, None)` at once.
-    """
-    filter_over_time(state.temporal, frame, result, output)
-    send_images(image_outputs(types, frame.header, result, params, wanted, state.disparity_buffer))
-    if frame.camera.no_depth_reason is not None:  # no baseline: disparity only (the caller warns once)
-        send_cloud({}, None)
-        return
-    due = state.cloud_rate.wanted([name for name in GEOMETRY_OUTPUTS if name in wanted], frame.stamp_ns, output)
-    if not due and not with_geometry:
-        send_cloud({}, None)
-        return
-
-    def cloud_stage() -> None:
-        geometry = result_geometry(pipeline, frame, result)  # times "depth"
-        start = time.perf_counter()
-        messages = geometry_outputs(types, frame.header, geometry, output, due, state)
-        result.timings_ms["points"] = (time.perf_counter() - start) * 1000.0
-        send_cloud(messages, geometry)
-
-    run_cloud_stage(cloud_stage)

@@ -1,0 +1,198 @@
+"""The nodes that match a stereo pair (stereo_node, its lifecycle twin, disparity_node): a FrameStream that
+is never None, its kernels warmed up before the first input, and what it returns published.
+
+Two worker stages form a pipeline: the first decodes and matches (several frames at once with
+`matching_threads`, a frame overtaken by a newer one dropped, never published after it), then, in input
+order, publishes the image outputs and hands the frame's cloud job to the second, which turns the
+disparity into depth and points2 and publishes them while the first already matches the next frame. So the
+disparity goes out without waiting for the cloud, and a frame costs the longer of the two stages instead
+of their sum. The second stage queues like the first (latest_worker.py: fewer waiting places as it falls
+behind, the newest only under overload, `max_latency_ms` honoured); a disparity whose cloud it drops is
+counted ("dropped clouds" in diagnostics).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from typing import Any, NamedTuple
+
+import numpy as np
+from sensor_msgs.msg import CameraInfo, Image
+
+from stereo_depth.core.calibration_check import check_rectified_pair
+from stereo_depth.core.pipeline import warm_up_kernels
+from stereo_depth.core.threads import use_threads
+from stereo_depth.frames import GEOMETRY_OUTPUTS, CloudJob
+from stereo_depth.messages import RVL_FALLBACK_NOTE, compressed_depth_codec
+from stereo_depth.options import NodeOptions, Settings
+from stereo_depth.ros import signals
+from stereo_depth.ros.latest_worker import LatestWorker
+from stereo_depth.ros.node_base import FrameJob
+from stereo_depth.ros.stream_node import StreamNode
+from stereo_depth.sync import StereoSet
+
+
+def stereo_inputs(image: str) -> tuple[tuple[str, Any], ...]:
+    """A stereo camera's four inputs in synchronizer order (sync.STEREO_INPUTS): `image` is the image
+    topic's last name (image_raw, image_rect)."""
+    return (
+        (f"left/{image}", Image),
+        ("left/camera_info", CameraInfo),
+        (f"right/{image}", Image),
+        ("right/camera_info", CameraInfo),
+    )
+
+
+class CloudTask(NamedTuple):
+    """A frame's cloud job on its way to the second stage, with what its diagnostics need."""
+
+    job: CloudJob
+    stamp_ns: int
+    received_s: float
+    stage_ms: dict[str, float]  # the first stage's
+
+
+class MatchingNode(StreamNode):
+    """A subclass names its inputs, options and outputs; this class does the rest."""
+
+    WITH_STEREO = True
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        self._cloud_stage: LatestWorker | None = None  # started at activation
+        self._checker: ThreadPoolExecutor | None = None
+        self._check_idle = threading.Event()
+        self._frames = 0
+        self._order_lock = threading.Lock()
+        self._published = 0  # sequence number of the newest set whose outputs went out
+        super().__init__(name, **kwargs)
+
+    def frames_at_once(self, settings: Settings) -> int:
+        return settings.options.matching_threads if "matching_threads" in self.OPTIONS else 1
+
+    def start_workers(self) -> None:
+        """The second stage and the calibration check first: the first stage's start can take seconds
+        (the census core loads), and a signal then must find every thread that `stop_workers` ends."""
+        options = self.parameters.settings.options
+        if "calibration_check" in self.OPTIONS:  # beside the depth path, never in it: one at a time, skipped if busy
+            self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calibration_check")
+            self._check_idle.set()
+            self._frames = 0
+        if set(GEOMETRY_OUTPUTS) & set(dict(self.OUTPUTS)):
+            self._cloud_stage = LatestWorker(
+                self._run_cloud, self.diagnostics.cloud_dropped, options.max_waiting_frames
+            )
+            self._cloud_stage.budget_s = options.max_latency_ms / 1000.0
+        super().start_workers()
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """The kernels the frames run, now rather than on the first frame."""
+        settings = self.parameters.settings
+        with signals.interruptible():  # numba's load or first compile: Ctrl-C need not wait for it
+            if settings.stereo is not None and settings.stereo.matcher == "census_sgm":
+                self.get_logger().info(
+                    "census_sgm core: loading its machine code (compiled on the first start after installing, "
+                    "one to two minutes; `stereo-depth compile` does that ahead)"
+                )
+            census = warm_up_kernels(settings.stereo)
+            if census is not None:
+                self.get_logger().info(f"census_sgm core ready in {census.seconds:.1f} s (numba cache: {census.cache})")
+
+    def process(self, job: FrameJob, settings: Settings) -> dict[str, float] | None:
+        """First stage: decode and match; then, in input order, the image outputs, and the cloud job handed
+        to the second stage."""
+        stream = self.stream
+        stream.use(settings.stereo, settings.output)  # parameter changes, between two frames
+        use_threads(settings.options.cpu_threads, self.frames_at_once(settings))
+        matched = stream.matched(StereoSet.paired(job.stamp_ns, job.messages))
+        stages = {"decode": matched.decode_ms}
+        with self.outputs_in_order(job.sequence) as newest:
+            if not newest:
+                return None
+            out = stream.outputs(matched, self._wanted(settings.options))
+            if out.calibration_changed:
+                self.note_calibration(out.frame.camera)
+            self.publish_outputs(out.images, stages, job.received_s)
+            if self._checker is not None:
+                self._maybe_check_calibration(out.frame.stamp_ns, out.result.left_rect, out.result.right_rect, settings)
+            if out.frame.camera.no_depth_reason is not None and self._cloud_stage is not None:
+                self.problems.warn_once(out.frame.camera.no_depth_reason)  # disparity only
+            if out.cloud is None or self._cloud_stage is None:
+                return {**out.stage_ms, **stages}
+            task = CloudTask(out.cloud, job.stamp_ns, job.received_s, {**out.stage_ms, **stages})
+            self._cloud_stage.submit(task, job.received_s)
+        return None
+
+    @contextmanager
+    def outputs_in_order(self, sequence: int) -> Iterator[bool]:
+        """Hold while the frame of input order `sequence` publishes. Yields False, and counts the frame as
+        dropped, when a newer set processed beside this one has published already: subscribers never see
+        stamps go back."""
+        with self._order_lock:
+            if sequence < self._published:
+                self.diagnostics.add_dropped(1)
+                yield False
+                return
+            self._published = sequence
+            yield True
+
+    def _run_cloud(self, task: CloudTask) -> None:
+        def work() -> None:
+            cloud = task.job.run()
+            stages = task.stage_ms
+            self.publish_outputs(cloud.messages, stages, task.received_s)
+            self._note_compressed_depth_fallback(cloud.messages.get("depth/compressedDepth"))
+            self.finish_frame(task.stamp_ns, {**cloud.stage_ms, **stages})
+
+        self.guarded(work)
+
+    def _note_compressed_depth_fallback(self, compressed: Any) -> None:
+        """One log line the first time rvl sends a frame as PNG (image_transport's decoder refuses its stream)."""
+        wanted = self.parameters.settings.output.compressed_depth_format
+        if compressed is not None and compressed_depth_codec(compressed) != wanted:
+            self.get_logger().info(RVL_FALLBACK_NOTE, once=True)
+
+    def _settings_changed(self, settings: Settings) -> None:
+        super()._settings_changed(settings)
+        if self._cloud_stage is not None:  # None while a lifecycle node is not active
+            self._cloud_stage.capacity = settings.options.max_waiting_frames
+            self._cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0
+
+    def _maybe_check_calibration(
+        self, stamp_ns: int, left_rect: np.ndarray, right_rect: np.ndarray, settings: Settings
+    ) -> None:
+        options = settings.options
+        self._frames += 1
+        if not options.calibration_check or self._frames % options.calibration_check_every_n_frames:
+            return
+        if not self._check_idle.is_set() or self._checker is None:
+            return  # the previous check is still running: skip this one rather than queue
+        self._check_idle.clear()
+        # copies: the check outlives this frame, whose buffers the next frame may reuse
+        self._checker.submit(self._check_calibration, stamp_ns, left_rect.copy(), right_rect.copy())
+
+    def _check_calibration(self, stamp_ns: int, left_rect: np.ndarray, right_rect: np.ndarray) -> None:
+        try:
+            self.diagnostics.calibration(stamp_ns, check_rectified_pair(left_rect, right_rect))
+        finally:
+            self._check_idle.set()
+
+    def stop_workers(self) -> None:
+        super().stop_workers()  # the first stage: nothing new reaches the second
+        if self._cloud_stage is not None:
+            self._cloud_stage.stop()
+            self._cloud_stage = None
+        if self._checker is not None:
+            self._checker.shutdown(wait=True, cancel_futures=True)
+            self._checker = None
+
+    def _wanted(self, options: NodeOptions) -> frozenset[str]:
+        """The outputs switched on (publish_*) that someone listens to: only those are built."""
+        return frozenset(
+            name
+            for name, publisher in self._output_publishers.items()
+            if name not in self.OUTPUT_SWITCHES or self.wanted(publisher, getattr(options, self.OUTPUT_SWITCHES[name]))
+        )
