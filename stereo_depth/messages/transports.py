@@ -97,8 +97,9 @@ _INV_DEPTH = 0  # compressed_depth_image_transport's compressionFormat enum: UND
 _CONFIG_HEADER = np.dtype([("format", "<i4"), ("depth_param", "<f4", (2,))])  # its ConfigHeader, 12 bytes
 RVL_MAX_PIXELS_PER_BYTE = 5  # the most the transport's decoder takes (`rvl_accepted`)
 # PNG rows unfiltered: what RVL refuses is mostly runs of zeros, which deflate packs as small unfiltered
-# (3.2-3.6 kB at 752x480), and libpng's adaptive filter choice costs 8-15 ms of such a frame, unfiltered 1-2
-_UNFILTERED = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE)
+# (3.2-3.6 kB at 752x480), and libpng's adaptive filter choice costs 8-15 ms of such a frame, unfiltered 1-2.
+# OpenCV 4.6 (the oldest we support) has no such flag: there libpng chooses the filters, same pixels.
+_UNFILTERED = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE) if hasattr(cv2, "IMWRITE_PNG_FILTER") else ()
 RVL_FALLBACK_NOTE = (
     "depth/compressedDepth: a frame of mostly invalid depth packs into fewer RVL bytes than image_transport's "
     "decoder accepts (pixels / 5), so such frames go as PNG; each message's format string names its codec"
