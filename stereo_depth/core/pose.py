@@ -72,7 +72,8 @@ class Pose:
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Points (..., 3) given in B, in A."""
-        return np.asarray(points, dtype=np.float64) @ self.rotation_matrix().T + np.array(self.translation)
+        moved: np.ndarray = np.asarray(points, dtype=np.float64) @ self.rotation_matrix().T + self.translation
+        return moved
 
     def compose(self, other: Pose) -> Pose:
         """C in A, where self is B in A and `other` is C in B."""
