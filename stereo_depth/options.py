@@ -20,6 +20,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import yaml
+
 from stereo_depth.core.option_fields import check_ranges, coerced, option
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams
 from stereo_depth.errors import ParameterError
@@ -274,6 +276,16 @@ class Settings:
 def output_options(values: Mapping[str, Any]) -> OutputOptions:
     """OutputOptions from looser values (text from the command line, YAML), validated."""
     return OutputOptions(**coerced(OutputOptions, values)).validate()
+
+
+def list_value(name: str, text: str) -> Any:
+    """A list option's value given as text (`--set`, a flag, `ros2 param set` mixing integers and doubles),
+    read as YAML as ROS reads `-p name:=[0, 0, 1]`; the option's field checks what it holds."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        msg = f"{name}: cannot read {text!r} as a YAML list ({' '.join(str(exc).split())})"
+        raise ParameterError(msg) from exc
 
 
 def node_options(values: Mapping[str, Any]) -> NodeOptions:

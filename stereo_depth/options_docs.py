@@ -71,9 +71,7 @@ def render_config_yaml() -> str:
 
 
 def _yaml_value(value: object) -> str:
-    value = plain_value(value)
-    if isinstance(value, list):
-        return f"[{', '.join(map(str, value))}]"  # doubles written as such (0.0), as ROS declares them
+    value = plain_value(value)  # a list of floats: [0.0, ...], doubles as ROS declares them
     if isinstance(value, bool):
         return "true" if value else "false"
     if value == "":

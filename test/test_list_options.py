@@ -168,6 +168,12 @@ def posed_node(ros: Any, posed: None, monkeypatch: pytest.MonkeyPatch) -> Iterat
     node.destroy_node()
 
 
+def latest(applied: list[Settings]) -> PosedOutputs:
+    output = applied[-1].output
+    assert isinstance(output, PosedOutputs)
+    return output
+
+
 def test_ros_param_set_takes_a_pose_and_refuses_a_bad_one_with_the_reason(
     ros: Any, posed_node: tuple[Any, list[Settings]]
 ) -> None:
@@ -176,9 +182,13 @@ def test_ros_param_set_takes_a_pose_and_refuses_a_bad_one_with_the_reason(
     fqn = node.get_fully_qualified_name()
     [ok] = ros.set_parameters(fqn, camera_in_left=[0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     assert ok.successful
-    assert applied[-1].output.camera_in_left == Pose((0.2, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))  # type: ignore[attr-defined]
+    assert latest(applied).camera_in_left == Pose((0.2, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
     [integers] = ros.set_parameters(fqn, gains=[4, 5, 6])
-    assert integers.successful and applied[-1].output.gains == (4.0, 5.0, 6.0)  # type: ignore[attr-defined]
+    assert integers.successful and latest(applied).gains == (4.0, 5.0, 6.0)
+    [mixed] = ros.set_parameters(fqn, camera_in_left="[0.3, 0, 0, 0, 0, 0, 1]")  # ros2 param set sends it as text
+    assert mixed.successful and latest(applied).camera_in_left.translation == (0.3, 0.0, 0.0)
+    [word] = ros.set_parameters(fqn, gains="high")
+    assert not word.successful and "expected 'Type.DOUBLE_ARRAY' got 'Type.STRING'" in word.reason
     [bad] = ros.set_parameters(fqn, camera_in_left=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0])
     assert not bad.successful
     assert bad.reason == "camera_in_left: quaternion (0, 0, 0, 2) has norm 2.0000; give a unit quaternion (x, y, z, w)"
@@ -188,7 +198,7 @@ def test_ros_param_set_takes_a_pose_and_refuses_a_bad_one_with_the_reason(
     assert not outside.successful and outside.reason == "gains [1.0, 2.0, 30.0]: 30.0 is outside [0.0, 10.0]"
     values = ros.get_parameters(fqn, "camera_in_left", "gains")
     assert {name: list(value) for name, value in values.items()} == {
-        "camera_in_left": [0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "camera_in_left": [0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
         "gains": [4.0, 5.0, 6.0],
     }
-    assert len(applied) == 2
+    assert len(applied) == 3

@@ -9,9 +9,6 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import yaml
-
-from stereo_depth.errors import ParameterError
 from stereo_depth.formats.calibration_files import read_stereo_calibration
 
 if TYPE_CHECKING:
@@ -19,6 +16,7 @@ if TYPE_CHECKING:
 
 from stereo_depth.core.option_fields import plain_value, spec_of
 from stereo_depth.core.params import PROFILES, StereoParams, make_params, parse_assignments
+from stereo_depth.options import list_value
 
 
 def add_param_options(parser: argparse.ArgumentParser) -> None:
@@ -40,15 +38,6 @@ def assignments(items: list[str]) -> dict[str, Any]:
         name: list_value(name, value) if value.startswith("[") else value
         for name, value in parse_assignments(items).items()
     }
-
-
-def list_value(name: str, text: str) -> Any:
-    """A list option's value given as text, read as YAML (`[0, 0, 1]`); the option's type checks the rest."""
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        msg = f"{name}: cannot read {text!r} as a YAML list ({' '.join(str(exc).split())})"
-        raise ParameterError(msg) from exc
 
 
 def params_from_args(args: argparse.Namespace, extra: Mapping[str, object] | None = None) -> StereoParams:

@@ -8,7 +8,8 @@ parameter is then declared with X's value as its default, and rclpy applies expl
 `--params-file` values on top. stereo_image_proc's `stereo_algorithm` and `full_dp` are aliases: given
 at start-up they set the default of `matcher` / `sgbm_mode`; set at run time they set those parameters.
 A list option is a double array; integers given for it (`-p name:=[0, 0, 1]`, `ros2 param set` alike, as
-ROS's YAML reads them) are taken as doubles.
+ROS's YAML reads them) are taken as doubles, and so is the text `ros2 param set` sends for a list that
+mixes integers and doubles.
 """
 
 from __future__ import annotations
@@ -24,7 +25,14 @@ from rclpy.parameter import Parameter
 from stereo_depth.core.option_fields import coerced, is_pose, plain_value, spec_of
 from stereo_depth.core.params import COMPAT_ALIASES, PROFILES, StereoParams, translate_aliases
 from stereo_depth.errors import ParameterError
-from stereo_depth.options import STARTUP_OPTIONS, NodeOptions, OutputOptions, Settings, unknown_parameters_line
+from stereo_depth.options import (
+    STARTUP_OPTIONS,
+    NodeOptions,
+    OutputOptions,
+    Settings,
+    list_value,
+    unknown_parameters_line,
+)
 
 OptionClass = type[StereoParams] | type[NodeOptions] | type[OutputOptions]
 
@@ -155,11 +163,25 @@ class NodeParameters:
             self._node.get_logger().warning(line)
 
     def _as_declared(self, parameter: Parameter) -> Parameter:
-        """Integers given for a list option as the doubles it is declared with (rclpy refuses another type)."""
+        """A list option's numbers as the doubles it is declared with (rclpy refuses another type): integers
+        (ROS's YAML reads `[0, 0, 1]` so) and the text `ros2 param set` sends for `[0.5, 0, 1]`, a list
+        mixing integers and doubles. Anything else is left for rclpy to refuse."""
         field = self._fields.get(parameter.name)
-        if field is None or not spec_of(field[1]).length or parameter.type_ != Parameter.Type.INTEGER_ARRAY:
+        if field is None or not spec_of(field[1]).length:
             return parameter
-        return Parameter(parameter.name, value=[float(v) for v in parameter.value])
+        value = parameter.value  # an array.array from the parameter service
+        if parameter.type_ == Parameter.Type.STRING:
+            try:
+                value = list_value(parameter.name, value)
+            except ParameterError:
+                return parameter
+            if not isinstance(value, list):
+                return parameter
+        elif parameter.type_ != Parameter.Type.INTEGER_ARRAY:
+            return parameter
+        if not all(type(v) in (int, float) for v in value):
+            return parameter
+        return Parameter(parameter.name, value=[float(v) for v in value])
 
     def _before_set(self, parameters: list[Parameter]) -> list[Parameter]:
         """Integer lists as doubles; `ros2 param set stereo_algorithm 1` also sets matcher, in the same
