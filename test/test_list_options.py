@@ -22,7 +22,7 @@ import yaml
 from stereo_depth import options, options_docs
 from stereo_depth.cli import build_parser, main
 from stereo_depth.commands import process as process_command
-from stereo_depth.commands.common import add_option_flags
+from stereo_depth.commands.common import add_option_flags, assignments
 from stereo_depth.core.option_fields import coerced, option, pose_option
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pose import UNSET_POSE, Pose
@@ -66,6 +66,12 @@ def test_set_reads_a_list_as_yaml_and_takes_integers_where_doubles_are_declared(
 
 
 @pytest.mark.usefixtures("posed")
+def test_set_reads_yaml_only_for_list_options() -> None:
+    given = assignments(["mask_image=[robot].png", "gains=[1, 2, 3]"])
+    assert given == {"mask_image": "[robot].png", "gains": [1, 2, 3]}
+
+
+@pytest.mark.usefixtures("posed")
 def test_a_pose_is_unset_by_default_and_seven_zeros_say_unset() -> None:
     assert outputs().camera_in_left == UNSET_POSE and not outputs().camera_in_left.is_set
     assert not outputs("--set", "camera_in_left=[0, 0, 0, 0, 0, 0, 0]").camera_in_left.is_set
@@ -100,7 +106,7 @@ def test_a_parameter_file_gives_lists_as_ros_reads_them(tmp_path: Path) -> None:
         ("gains=[1, 2, -0.5]", "gains [1.0, 2.0, -0.5]: -0.5 is outside [0.0, 10.0]"),
         ("gains=[1, 2, x]", "gains: [1, 2, 'x'] is not a list of 3 numbers"),
         ("gains=[1, 2, .nan]", "gains: [1, 2, nan] is not a list of 3 numbers"),
-        ("gains=2", "gains: '2' is not a list of 3 numbers, e.g. [0.0, 0.0, 0.0]"),
+        ("gains=2", "gains: 2 is not a list of 3 numbers, e.g. [0.0, 0.0, 0.0]"),
         ("gains=[1, 2", "gains: cannot read '[1, 2' as a YAML list"),
     ],
 )

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 from stereo_depth.core.option_fields import plain_value, spec_of
 from stereo_depth.core.params import PROFILES, StereoParams, make_params, parse_assignments
-from stereo_depth.options import list_value
+from stereo_depth.options import list_option_names, list_value
 
 
 def add_param_options(parser: argparse.ArgumentParser) -> None:
@@ -33,10 +33,10 @@ def add_param_options(parser: argparse.ArgumentParser) -> None:
 
 
 def assignments(items: list[str]) -> dict[str, Any]:
-    """`--set name=value` items; a list value (`[...]`) read as YAML, as ROS's `-p` reads it."""
+    """`--set name=value` items; a list option's value (`[0, 0, 1]`) read as YAML, as ROS's `-p` reads it."""
+    lists = list_option_names()
     return {
-        name: list_value(name, value) if value.startswith("[") else value
-        for name, value in parse_assignments(items).items()
+        name: list_value(name, value) if name in lists else value for name, value in parse_assignments(items).items()
     }
 
 
