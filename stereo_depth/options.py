@@ -1,6 +1,7 @@
 """Every option of stereo_depth, each stated once: name, type, default, range or choices, doc.
 
-ROS-free. Three tables, one dataclass each, one field per option (`option(default, doc, lo, hi, step)`):
+ROS-free. Three tables, one dataclass each, one field per option (`option(default, doc, lo, hi, step)`;
+a list of numbers adds `length=N`, a pose `[x, y, z, qx, qy, qz, qw]` is `pose_option(doc)`):
 
 - `StereoParams` (core/params.py, with the profiles): what a frame is computed with;
 - `OutputOptions`: how outputs are built, live and offline alike (node parameters, `process --set`);
@@ -20,7 +21,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from stereo_depth.core.option_fields import check_ranges, coerced, option
+import yaml
+
+from stereo_depth.core.option_fields import check_ranges, coerced, option, spec_of
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams
 from stereo_depth.errors import ParameterError
 from stereo_depth.mask_image import read_mask
@@ -274,6 +277,20 @@ class Settings:
 def output_options(values: Mapping[str, Any]) -> OutputOptions:
     """OutputOptions from looser values (text from the command line, YAML), validated."""
     return OutputOptions(**coerced(OutputOptions, values)).validate()
+
+
+def list_option_names() -> set[str]:
+    return {f.name for cls in OPTION_CLASSES for f in dataclasses.fields(cls) if spec_of(f).length}
+
+
+def list_value(name: str, text: str) -> Any:
+    """A list option's value given as text (`--set`, a flag, `ros2 param set` mixing integers and doubles),
+    read as YAML as ROS reads `-p name:=[0, 0, 1]`; the option's field checks what it holds."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        msg = f"{name}: cannot read {text!r} as a YAML list ({' '.join(str(exc).split())})"
+        raise ParameterError(msg) from exc
 
 
 def node_options(values: Mapping[str, Any]) -> NodeOptions:

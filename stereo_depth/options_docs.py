@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from stereo_depth.core.option_fields import OptionSpec, spec_of
+from stereo_depth.core.option_fields import OptionSpec, is_pose, plain_value, spec_of
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.options import STARTUP_OPTIONS, NodeOptions, OutputOptions
 
@@ -60,7 +60,7 @@ def render_config_yaml() -> str:
         lines.append(f"    # --- {title}\n")
         for f in dataclasses.fields(cls):
             spec = spec_of(f)
-            bounds = f" [{spec.lo} .. {spec.hi}]" if spec.lo is not None else ""
+            bounds = f" [{spec.lo} .. {spec.hi}{' each' if spec.length else ''}]" if spec.lo is not None else ""
             lines.append(f"    # {spec.doc}{bounds}\n    {f.name}: {_yaml_value(getattr(cls(), f.name))}\n")
         if cls is StereoParams:
             lines.append(
@@ -71,6 +71,7 @@ def render_config_yaml() -> str:
 
 
 def _yaml_value(value: object) -> str:
+    value = plain_value(value)  # a list of floats: [0.0, ...], doubles as ROS declares them
     if isinstance(value, bool):
         return "true" if value else "false"
     if value == "":
@@ -172,7 +173,7 @@ def _parameters(node: Any) -> list[str]:
     for title, cls in (("Outputs", OutputOptions), ("Node", NodeOptions)):
         fields = [f for f in dataclasses.fields(cls) if f.name in declared]
         if fields:
-            groups.append((title, [_row(f.name, f.type, getattr(cls(), f.name), spec_of(f), "") for f in fields]))
+            groups.append((title, [_row(f.name, _type(f), getattr(cls(), f.name), spec_of(f), "") for f in fields]))
     lines = ["### Parameters", ""]
     for title, rows in groups:
         lines += [
@@ -201,9 +202,17 @@ def _stereo_rows() -> Iterator[str]:
             for profile, values in PROFILES.items()
             if f.name in values and values[f.name] != default
         ]
-        yield _row(f.name, f.type, default, spec_of(f), f" Profiles: {', '.join(others)}." if others else "")
+        yield _row(f.name, _type(f), default, spec_of(f), f" Profiles: {', '.join(others)}." if others else "")
     for name, kind, doc in ALIASES:
         yield _row(name, kind, "unset", OptionSpec(doc), "")
+
+
+def _type(f: dataclasses.Field[Any]) -> object:
+    """The type column: a list option's element type and length (`float[3]`), a pose's `pose`."""
+    length = spec_of(f).length
+    if is_pose(f):
+        return "pose"
+    return f"float[{length}]" if length else f.type
 
 
 def _row(name: str, kind: object, default: object, spec: OptionSpec, extra: str) -> str:
@@ -211,15 +220,20 @@ def _row(name: str, kind: object, default: object, spec: OptionSpec, extra: str)
     when = "start-up" if name in STARTUP_OPTIONS or name == PROFILE_OPTION else "dynamic"
     text = f"{spec.doc.rstrip('.')}.{extra}".replace("|", "/")
     shown = default if default == "unset" else f"`{_yaml_value(default)}`"
-    return f"| `{name}` | {type_name} | {shown} | {_values(spec)} | {when} | {text} |"
+    return f"| `{name}` | {type_name} | {shown} | {_values(spec, type_name == 'pose')} | {when} | {text} |"
 
 
-def _values(spec: OptionSpec) -> str:
+def _values(spec: OptionSpec, pose: bool) -> str:
     if spec.choices:
         return ", ".join(f"`{c}`" for c in spec.choices)
+    if pose:
+        return "x, y, z (m), qx, qy, qz, qw (unit quaternion); all zero: unset"
     if spec.lo is None:
         return ""
-    return f"{_number(spec.lo)} .. {_number(spec.hi)}" + (f", step {spec.step}" if spec.step not in (0, 1) else "")
+    each = " each" if spec.length else ""
+    return f"{_number(spec.lo)} .. {_number(spec.hi)}{each}" + (
+        f", step {spec.step}" if spec.step not in (0, 1) else ""
+    )
 
 
 def _number(value: float | None) -> str:

@@ -12,10 +12,16 @@ import yaml
 
 from stereo_depth.bag.process import ProcessOptions, process_bag
 from stereo_depth.bag.writer import STORAGES
-from stereo_depth.commands.common import add_option_flags, add_param_options, add_topic_options, topic_choice
+from stereo_depth.commands.common import (
+    add_option_flags,
+    add_param_options,
+    add_topic_options,
+    assignments,
+    topic_choice,
+)
 from stereo_depth.commands.process_many import add_fleet_options, check_single_bag_options, run_many
 from stereo_depth.core.option_fields import option_names
-from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params, parse_assignments
+from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params
 from stereo_depth.errors import ParameterError
 from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS, camera_fixes
 from stereo_depth.options import (
@@ -116,14 +122,14 @@ def settings_from(args: argparse.Namespace) -> tuple[StereoParams, Settings]:
     error; keys of the file that no stereo_depth node knows (it may configure other nodes too) get one
     warning line."""
     from_file = read_params_file(args.params) if getattr(args, "params", None) else {}
-    assignments = parse_assignments(args.assignments)
+    given = assignments(args.assignments)
     stereo_names = {*field_names(), *COMPAT_ALIASES}
-    for name in assignments:
+    for name in given:
         if name not in stereo_names | set(option_names(OutputOptions)):
             reason = unknown_parameters_line([name]) or f"'{name}' is a live node's option, not used offline"
             msg = f"--set: {reason}"
             raise ParameterError(msg)
-    values = {**from_file, **assignments}
+    values = {**from_file, **given}
     stereo = make_params(args.profile, {k: v for k, v in values.items() if k in stereo_names})
     line = unknown_parameters_line(from_file)
     if line is not None:
