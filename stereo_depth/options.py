@@ -145,7 +145,11 @@ class NodeOptions:
         "Subscription reliability: auto (follow the publishers, as rosbag2), reliable, best_effort",
         choices=("auto", "reliable", "best_effort"),
     )
-    publish_rectified: bool = option(True, "Publish left/image_rect(_color)")
+    publish_rectified: bool = option(
+        True,
+        "Publish left/image_rect(_color) and right/image_rect(_color) (stereo odometry's inputs; built only "
+        "while subscribed): the camera's own bit depth, a 16-bit camera unscaled",
+    )
     publish_disparity: bool = option(True, "Publish disparity (stereo_msgs/DisparityImage)")
     publish_depth: bool = option(True, "Publish depth (32FC1, metres, NaN invalid)")
     publish_points: bool = option(True, "Publish points2 (sensor_msgs/PointCloud2)")

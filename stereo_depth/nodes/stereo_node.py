@@ -30,6 +30,8 @@ from stereo_depth.sync import STEREO_CALIBRATIONS
 OUTPUT_TYPES = {
     "left/image_rect": Image,
     "left/image_rect_color": Image,
+    "right/image_rect": Image,
+    "right/image_rect_color": Image,
     "disparity": DisparityImage,
     "confidence": Image,
     "depth": Image,
@@ -42,6 +44,8 @@ OUTPUT_TYPES = {
 SWITCHES = {
     "left/image_rect": "publish_rectified",
     "left/image_rect_color": "publish_rectified",
+    "right/image_rect": "publish_rectified",
+    "right/image_rect_color": "publish_rectified",
     "disparity": "publish_disparity",
     "confidence": "publish_confidence",
     "depth": "publish_depth",
