@@ -62,6 +62,14 @@ class OutputOptions:
     cloud_voxel_size: float = option(
         0.0, "With organized_cloud false: one point per voxel of this edge, metres (0 = off)", 0.0, 100.0
     )
+    points_decimation: int = option(
+        1,
+        "points2 and points2_clearing from every Nth row and column of the depth image (1, 2 or 4): 1/N^2 the "
+        "points, each its own pixel's ray and depth (no averaging); depth stays at its full size. Counted in "
+        "the depth image's pixels (after downsample_output: processed), taken before organized_cloud: false "
+        "and cloud_voxel_size thin what is left",
+        choices=(1, 2, 4),
+    )
     points_max_rate: float = option(
         0.0,
         "Publish points2 (and points2_clearing) at most this often, Hz, judged by stamps (0 = every frame)",
@@ -261,6 +269,7 @@ CLOUD_OPTIONS = (
     "mask_image",
     "organized_cloud",
     "cloud_voxel_size",
+    "points_decimation",
     "points_max_rate",
 )
 # what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)

@@ -337,6 +337,7 @@ def geometry_outputs(
     """
     clearing = clearing_depth(geometry, options, state.masks) if "points2_clearing" in wanted else None
     geometry = geometry._replace(depth=limited_depth(geometry, options, state.masks))
+    cloud = decimated(geometry, options.points_decimation)
     messages: dict[str, Any] = {}
     if {"depth", "depth/compressedDepth"} & set(wanted):
         pixels = depth_pixels(geometry.depth, options.depth_encoding)
@@ -356,12 +357,12 @@ def geometry_outputs(
     if "depth/camera_info" in wanted:
         messages["depth/camera_info"] = depth_camera_info(types, header, geometry.camera)
     if "points2" in wanted:
-        color = geometry.image if options.use_color else None
+        color = cloud.image if options.use_color else None
         messages["points2"] = depth_to_cloud(
             types,
             header,
-            geometry.depth,
-            geometry.rays,
+            cloud.depth,
+            cloud.rays,
             color,
             avoid_padding=options.avoid_point_cloud_padding,
             buffer=state.cloud_buffer,
@@ -372,10 +373,23 @@ def geometry_outputs(
         messages["points2_clearing"] = depth_to_cloud(
             types,
             header,
-            clearing,
-            geometry.rays,
+            decimated(geometry._replace(depth=clearing), options.points_decimation).depth,
+            cloud.rays,
             avoid_padding=options.avoid_point_cloud_padding,
             buffer=state.clearing_buffer,
             organized=False,
         )
     return messages
+
+
+def decimated(geometry: Geometry, step: int) -> Geometry:
+    """The geometry of every `step`th row and column (points_decimation): each kept pixel's own depth,
+    ray and colour, bit for bit those of the full-size cloud's point there."""
+    if step == 1:
+        return geometry
+    rays = Rays(x=np.ascontiguousarray(geometry.rays.x[:, ::step]), y=np.ascontiguousarray(geometry.rays.y[::step]))
+    return geometry._replace(
+        depth=np.ascontiguousarray(geometry.depth[::step, ::step]),
+        rays=rays,
+        image=np.ascontiguousarray(geometry.image[::step, ::step]),
+    )
