@@ -27,6 +27,8 @@ from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
 from stereo_depth.frames import FrameStream
 from stereo_depth.messages import array_to_image, image_to_array, stamp_to_ns
+from stereo_depth.options import NodeOptions, Settings
+from stereo_depth.ros.matching_node import camera_info_mismatch
 from stereo_depth.sync import Synchronizer
 
 BAG = Path(__file__).resolve().parents[1] / "bags" / "euroc_raw"
@@ -181,3 +183,22 @@ def test_a_16_bit_camera_keeps_its_brightness_when_one_pixel_saturates() -> None
         away = np.ones(calm.shape, bool)
         away[:8, :8] = False  # the saturated pixel's neighbourhood, wherever rectification moved it
         assert np.array_equal(calm[away], hot[away]), name
+
+
+@pytest.mark.parametrize(
+    ("stereo", "node"),
+    [
+        ({"downsample": 2, "downsample_output": "processed"}, {}),
+        ({}, {"left_camera_info_url": "file:///calibration/left.yaml"}),
+    ],
+    ids=("downsample_output_processed", "camera_info_url"),
+)
+def test_a_node_says_when_its_camera_infos_cannot_describe_the_rectified_images(
+    stereo: dict[str, Any], node: dict[str, Any]
+) -> None:
+    """What a VO node pairs the rectified images with is the camera_info topics: where those describe other
+    images (or none is published), the node says so (once) instead of feeding odometry a wrong model."""
+    assert camera_info_mismatch(Settings(make_params(), NodeOptions())) is None
+    assert camera_info_mismatch(Settings(make_params("default", {"downsample": 2}), NodeOptions())) is None
+    mismatch = camera_info_mismatch(Settings(make_params("default", stereo), NodeOptions(**node)))
+    assert mismatch is not None and "stereo odometry" in mismatch
