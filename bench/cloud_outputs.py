@@ -1,8 +1,9 @@
 """What points2 costs per frame in each layout a navigation or mapping user picks: bytes on the wire,
 build time (frames.geometry_outputs, as stereo_node's second stage calls it) and publish time
 (rclpy's publish() to one subscriber over real DDS on this machine), for the organized cloud
-(stereo_image_proc's layout, the baseline), the dense one (organized_cloud false) and voxel-thinned
-ones. The frame: the first raw EuRoC pair of test/data/euroc (752x480), matched with the default profile.
+(stereo_image_proc's layout, the baseline), organized ones of every 2nd and 4th pixel
+(points_decimation), the dense one (organized_cloud false) and voxel-thinned ones. The frame: the first
+raw EuRoC pair of test/data/euroc (752x480), matched with the default profile.
 
     flock /tmp/stereo_depth_cpu.lock .venv/bin/python bench/cloud_outputs.py [--repeat 30] [--markdown]
 """
@@ -37,6 +38,8 @@ from lib.table import parse_bench_arguments, table_header, table_row, times
 EUROC = Path(__file__).resolve().parents[1] / "test" / "data" / "euroc"
 LAYOUTS = {
     "organized (default)": OutputOptions(),
+    "organized, decimation 2": OutputOptions(points_decimation=2),
+    "organized, decimation 4": OutputOptions(points_decimation=4),
     "dense": OutputOptions(organized_cloud=False),
     "dense, voxel 0.05 m": OutputOptions(organized_cloud=False, cloud_voxel_size=0.05),
     "dense, voxel 0.2 m": OutputOptions(organized_cloud=False, cloud_voxel_size=0.2),
@@ -73,7 +76,7 @@ def main() -> None:
         print(table_header(("points2 layout", "points", "MB", "build + publish ms", "vs organized")))
     else:
         print(
-            f"{'points2 layout':22s}{'points':>9s}{'MB':>8s}{'build ms':>10s}{'publish ms':>12s}"
+            f"{'points2 layout':25s}{'points':>9s}{'MB':>8s}{'build ms':>10s}{'publish ms':>12s}"
             f"{'total/organized':>17s}"
         )
     baseline = None
@@ -100,7 +103,7 @@ def main() -> None:
             print(table_row((label, points, f"{len(cloud.data) / 1e6:.2f}", cost, times(total / baseline))), flush=True)
             continue
         print(
-            f"{label:22s}{points:9d}{len(cloud.data) / 1e6:8.2f}{build_ms:10.2f}{publish_ms:12.2f}"
+            f"{label:25s}{points:9d}{len(cloud.data) / 1e6:8.2f}{build_ms:10.2f}{publish_ms:12.2f}"
             f"{total / baseline:17.2f}",
             flush=True,
         )

@@ -45,7 +45,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
     if arg["split_nodes"].lower() != "true":
         remaps = [
             *to_cameras("image_raw", "camera_info"),
-            *to_cameras("image_rect", "image_rect_color", sides=("left",)),
+            *to_cameras("image_rect", "image_rect_color"),  # both: what stereo odometry subscribes
         ]
         return [Node(executable="stereo_node", name="stereo_node", remappings=remaps, **common)]
     cloud_image = "image_rect_color" if arg["color"].lower() == "true" else "image_rect"

@@ -62,6 +62,14 @@ class OutputOptions:
     cloud_voxel_size: float = option(
         0.0, "With organized_cloud false: one point per voxel of this edge, metres (0 = off)", 0.0, 100.0
     )
+    points_decimation: int = option(
+        1,
+        "points2 and points2_clearing from every Nth row and column of the depth image (1, 2 or 4): 1/N^2 the "
+        "points, each its own pixel's ray and depth (no averaging); depth stays at its full size. Counted in "
+        "the depth image's pixels (after downsample_output: processed), taken before organized_cloud: false "
+        "and cloud_voxel_size thin what is left",
+        choices=(1, 2, 4),
+    )
     points_max_rate: float = option(
         0.0,
         "Publish points2 (and points2_clearing) at most this often, Hz, judged by stamps (0 = every frame)",
@@ -145,7 +153,11 @@ class NodeOptions:
         "Subscription reliability: auto (follow the publishers, as rosbag2), reliable, best_effort",
         choices=("auto", "reliable", "best_effort"),
     )
-    publish_rectified: bool = option(True, "Publish left/image_rect(_color)")
+    publish_rectified: bool = option(
+        True,
+        "Publish left/image_rect(_color) and right/image_rect(_color) (stereo odometry's inputs; built only "
+        "while subscribed): the camera's own bit depth, a 16-bit camera unscaled",
+    )
     publish_disparity: bool = option(True, "Publish disparity (stereo_msgs/DisparityImage)")
     publish_depth: bool = option(True, "Publish depth (32FC1, metres, NaN invalid)")
     publish_points: bool = option(True, "Publish points2 (sensor_msgs/PointCloud2)")
@@ -257,6 +269,7 @@ CLOUD_OPTIONS = (
     "mask_image",
     "organized_cloud",
     "cloud_voxel_size",
+    "points_decimation",
     "points_max_rate",
 )
 # what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)

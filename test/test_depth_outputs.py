@@ -205,3 +205,23 @@ def test_process_takes_the_same_options_from_a_params_file(tmp_path: Path) -> No
         stamp = stamp_to_ns(depth.header.stamp)
         last = max(s for s in cloud_stamps if s <= stamp)
         assert stamp == last or stamp - last < 1_000_000_000
+
+
+@pytest.mark.parametrize("decimation", [2, 4])
+def test_points_decimation_keeps_every_nth_pixel_of_the_full_cloud_bit_for_bit(
+    ros: RosHarness, nav: dict[str, Any], euroc: Pair, decimation: int
+) -> None:
+    """An organized cloud of every Nth row and column: each point that pixel's own point of the full
+    cloud (its ray and depth, its colour), no averaging; the depth image stays at full size."""
+    wanted = ("depth", "points2")
+    full = send(ros, nav, euroc, wanted)
+    thin = send(ros, nav, euroc, wanted, points_decimation=decimation)
+    assert (thin["depth"].height, thin["depth"].width) == (full["depth"].height, full["depth"].width)
+    height, width = full["points2"].height, full["points2"].width
+    assert (thin["points2"].height, thin["points2"].width) == (height // decimation, width // decimation)
+    full_xyz, full_rgb = cloud_to_arrays(full["points2"])
+    thin_xyz, thin_rgb = cloud_to_arrays(thin["points2"])
+    kept = (slice(None, None, decimation), slice(None, None, decimation))
+    assert np.isfinite(thin_xyz).any()
+    assert full_xyz[kept].tobytes() == thin_xyz.tobytes()  # NaN where NaN, every bit of the rest
+    assert full_rgb is not None and thin_rgb is not None and np.array_equal(full_rgb[kept], thin_rgb)

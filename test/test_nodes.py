@@ -100,8 +100,8 @@ def send_with_parameters(
     try:
         inputs.publish(pair, stamp)
         return {name: collector.wait_stamp(stamp) for name, collector in outputs.items()}
-    finally:
-        ros.set_parameters(node_fqn, **previous)
+    finally:  # undone last first: a rule across options (cloud_voxel_size needs organized_cloud false) holds
+        ros.set_parameters(node_fqn, **dict(reversed(previous.items())))
 
 
 class Pair:

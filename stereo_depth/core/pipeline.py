@@ -280,6 +280,21 @@ def _shrink_color(color: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return cv2.resize(color, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
 
 
+def rectified_output(
+    image: np.ndarray, camera: StereoCamera | None, side: str, *, rectified: bool, shape: tuple[int, ...]
+) -> np.ndarray:
+    """`side`'s input image as the rectified outputs carry it: rectified with that side's maps and shrunk
+    to `shape` (the matched images' size) as the matcher's images are, at the camera's own bit depth.
+
+    A 16-bit camera keeps its values: the matcher's 8-bit images are scaled by each pair's peak, which
+    would make the published brightness jump between frames, and visual odometry tracks brightness."""
+    if not rectified and camera is not None:
+        image = camera.rectify(image, side)
+    if image.shape[:2] != shape[:2]:
+        image = _shrink_color(image, shape)
+    return image
+
+
 def _shrink(left: np.ndarray, right: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:
     if factor == 1:
         return left, right

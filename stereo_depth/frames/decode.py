@@ -46,6 +46,7 @@ class StereoFrame:
     right: np.ndarray | None  # None: the set had no right image (point_cloud_node reads a disparity instead)
     camera: StereoCamera  # the pipeline's cached camera for this calibration
     rectified: bool  # the images are rectified already (image_rect inputs)
+    right_header: Any = None  # the right image's header (its frame_id goes on right/image_rect)
 
 
 @contextmanager
@@ -136,7 +137,8 @@ def decode_frame(
         )
         raise CalibrationError(msg)
     header = inputs.left_image.header
-    return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified)
+    right_header = inputs.right_image.header if inputs.right_image is not None else None
+    return StereoFrame(stamp_to_ns(header.stamp), header, left, right, camera, rectified, right_header)
 
 
 SwappableT = TypeVar("SwappableT", StereoSet, InputNames)

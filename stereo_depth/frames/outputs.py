@@ -15,7 +15,7 @@ import numpy as np
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays, disparity_to_depth
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params, rectified_output
 from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.errors import ImageError
 from stereo_depth.frames.decode import StereoFrame
@@ -28,15 +28,27 @@ from stereo_depth.messages import (
     depth_to_cloud,
     depth_to_compressed_depth,
     disparity_to_msg,
+    make_header,
 )
 from stereo_depth.options import OutputOptions
 
 # Output names, relative to the node's namespace (the topics stereo_node publishes).
-IMAGE_OUTPUTS = ("left/image_rect", "left/image_rect_color", "disparity", "confidence")
+IMAGE_OUTPUTS = (
+    "left/image_rect",
+    "left/image_rect_color",
+    "right/image_rect",
+    "right/image_rect_color",
+    "disparity",
+    "confidence",
+)
 GEOMETRY_OUTPUTS = ("depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing")
 OUTPUTS = (*IMAGE_OUTPUTS, *GEOMETRY_OUTPUTS)
-# what stereo_node publishes with its defaults and `process` writes unless told: not the two for navigation
-DEFAULT_OUTPUTS = tuple(name for name in OUTPUTS if name not in ("depth/compressedDepth", "points2_clearing"))
+# what `process` writes unless told: not the two for navigation, nor the right images (for visual odometry)
+DEFAULT_OUTPUTS = tuple(
+    name
+    for name in OUTPUTS
+    if name not in ("depth/compressedDepth", "points2_clearing") and not name.startswith("right/")
+)
 CLOUDS = frozenset({"points2", "points2_clearing"})  # what points_max_rate thins
 
 MM_PER_M = 1000.0
@@ -95,33 +107,46 @@ def valid_region(disparity: np.ndarray) -> tuple[int, int, int, int]:
 
 def image_outputs(
     types: MessageTypes,
-    header: Any,
+    frame: StereoFrame,
     result: StereoResult,
     disparity: np.ndarray,
     params: StereoParams,
     wanted: Collection[str],
     disparity_buffer: MessageBuffer | None = None,
 ) -> dict[str, Any]:
-    """The messages matching gives, by output name: those in `wanted` that this frame has (the colour
-    image needs a colour input, confidence a matcher that gives one); `disparity` is the frame's (after
-    the temporal filter), its data in `disparity_buffer` when given."""
+    """The messages matching gives, by output name: those in `wanted` that this frame has (a colour image
+    needs a colour input, confidence a matcher that gives one); `disparity` is the frame's (after the
+    temporal filter), its data in `disparity_buffer` when given. Every one carries the frame's stamp; the
+    right images carry the right camera's frame_id, the others the left's."""
     assert result.camera is not None
-    arrays: dict[str, tuple[np.ndarray | None, str | None]] = {
-        "left/image_rect": (result.left_rect, None),
-        "left/image_rect_color": (result.left_rect_color, None),
-        "confidence": (result.confidence, "32FC1"),
-    }
+    header = frame.header
     messages: dict[str, Any] = {}
-    for name in IMAGE_OUTPUTS:
-        if name not in wanted:
-            continue
-        if name == "disparity":
-            messages[name] = disparity_message(types, header, disparity, result.camera, params, disparity_buffer)
-            continue
-        pixels, encoding = arrays[name]
-        if pixels is not None:
-            messages[name] = array_to_image(types, header, pixels, encoding)
+    if "disparity" in wanted:
+        messages["disparity"] = disparity_message(types, header, disparity, result.camera, params, disparity_buffer)
+    if "confidence" in wanted and result.confidence is not None:
+        messages["confidence"] = array_to_image(types, header, result.confidence, "32FC1")
+    for side, raw, side_header in (("left", frame.left, header), ("right", frame.right, _right_header(types, frame))):
+        matched = result.left_rect if side == "left" else result.right_rect
+        if raw is not None and f"{side}/image_rect" in wanted:
+            mono = _rectified(frame, raw, side, matched.shape) if raw.dtype != np.uint8 else matched
+            messages[f"{side}/image_rect"] = array_to_image(types, side_header, mono)
+        if raw is not None and raw.ndim == 3 and f"{side}/image_rect_color" in wanted:
+            colour = result.left_rect_color if side == "left" else None
+            colour = colour if colour is not None else _rectified(frame, raw, side, matched.shape)
+            messages[f"{side}/image_rect_color"] = array_to_image(types, side_header, colour)
     return messages
+
+
+def _right_header(types: MessageTypes, frame: StereoFrame) -> Any:
+    """The frame's stamp (a VO node pairs the two images by it exactly) with the right camera's frame_id."""
+    right = frame.right_header if frame.right_header is not None else frame.header
+    return make_header(types, frame.stamp_ns, str(right.frame_id))
+
+
+def _rectified(frame: StereoFrame, raw: np.ndarray, side: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A rectified output the matcher did not need (the right colour image, a 16-bit camera's own values),
+    built only when someone wants it."""
+    return rectified_output(raw, frame.camera, side, rectified=frame.rectified, shape=shape)
 
 
 # ---------------------------------------------------------------- geometry outputs
@@ -312,6 +337,7 @@ def geometry_outputs(
     """
     clearing = clearing_depth(geometry, options, state.masks) if "points2_clearing" in wanted else None
     geometry = geometry._replace(depth=limited_depth(geometry, options, state.masks))
+    cloud = decimated(geometry, options.points_decimation)
     messages: dict[str, Any] = {}
     if {"depth", "depth/compressedDepth"} & set(wanted):
         pixels = depth_pixels(geometry.depth, options.depth_encoding)
@@ -331,12 +357,12 @@ def geometry_outputs(
     if "depth/camera_info" in wanted:
         messages["depth/camera_info"] = depth_camera_info(types, header, geometry.camera)
     if "points2" in wanted:
-        color = geometry.image if options.use_color else None
+        color = cloud.image if options.use_color else None
         messages["points2"] = depth_to_cloud(
             types,
             header,
-            geometry.depth,
-            geometry.rays,
+            cloud.depth,
+            cloud.rays,
             color,
             avoid_padding=options.avoid_point_cloud_padding,
             buffer=state.cloud_buffer,
@@ -347,10 +373,23 @@ def geometry_outputs(
         messages["points2_clearing"] = depth_to_cloud(
             types,
             header,
-            clearing,
-            geometry.rays,
+            decimated(geometry._replace(depth=clearing), options.points_decimation).depth,
+            cloud.rays,
             avoid_padding=options.avoid_point_cloud_padding,
             buffer=state.clearing_buffer,
             organized=False,
         )
     return messages
+
+
+def decimated(geometry: Geometry, step: int) -> Geometry:
+    """The geometry of every `step`th row and column (points_decimation): each kept pixel's own depth,
+    ray and colour, bit for bit those of the full-size cloud's point there."""
+    if step == 1:
+        return geometry
+    rays = Rays(x=np.ascontiguousarray(geometry.rays.x[:, ::step]), y=np.ascontiguousarray(geometry.rays.y[::step]))
+    return geometry._replace(
+        depth=np.ascontiguousarray(geometry.depth[::step, ::step]),
+        rays=rays,
+        image=np.ascontiguousarray(geometry.image[::step, ::step]),
+    )

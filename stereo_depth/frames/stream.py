@@ -172,7 +172,7 @@ class FrameStream:
         if matched.params.temporal_filter:
             stage_ms["temporal"] = (time.perf_counter() - start) * 1000.0
         images = image_outputs(
-            self.types, frame.header, result, disparity, matched.params, wanted, self.state.disparity_buffer
+            self.types, frame, result, disparity, matched.params, wanted, self.state.disparity_buffer
         )
         cloud = None
         if frame.camera.no_depth_reason is None:  # no baseline: disparity only (the caller warns once)

@@ -1,11 +1,11 @@
-"""stereo_node: raw stereo pair in, rectified left, disparity, depth and points2 out, in one process.
+"""stereo_node: raw stereo pair in, rectified pair, disparity, depth and points2 out, in one process.
 
 The node most users run: no intermediate topics, so no extra serialization of full-size images.
 Topics and parameters are stereo_image_proc's (docs/parameters.md lists them); `profile:=stereo_image_proc`
 gives its defaults.
 
 Two worker stages form a pipeline (ros/matching_node.py): the first rectifies, matches and publishes the
-disparity (and the rectified image and confidence); the second turns that disparity into depth and points2
+disparity (and the rectified images and confidence); the second turns that disparity into depth and points2
 and publishes them, while the first already matches the next frame. With `matching_threads:=2` the first
 stage matches two frames at once, for matchers that leave cores idle.
 """
@@ -30,6 +30,8 @@ from stereo_depth.sync import STEREO_CALIBRATIONS
 OUTPUT_TYPES = {
     "left/image_rect": Image,
     "left/image_rect_color": Image,
+    "right/image_rect": Image,
+    "right/image_rect_color": Image,
     "disparity": DisparityImage,
     "confidence": Image,
     "depth": Image,
@@ -42,6 +44,8 @@ OUTPUT_TYPES = {
 SWITCHES = {
     "left/image_rect": "publish_rectified",
     "left/image_rect_color": "publish_rectified",
+    "right/image_rect": "publish_rectified",
+    "right/image_rect_color": "publish_rectified",
     "disparity": "publish_disparity",
     "confidence": "publish_confidence",
     "depth": "publish_depth",

@@ -112,7 +112,10 @@ class MatchingNode(StreamNode):
         with self.outputs_in_order(job.sequence) as newest:
             if not newest:
                 return None
-            out = stream.outputs(matched, self._wanted(settings.options))
+            wanted = self._wanted(settings.options)
+            out = stream.outputs(matched, wanted)
+            if "right/image_rect" in wanted and (mismatch := camera_info_mismatch(settings)) is not None:
+                self.problems.warn_once(mismatch)
             if out.calibration_changed:
                 self.note_calibration(out.frame.camera)
             self.publish_outputs(out.images, stages, job.received_s)
@@ -196,3 +199,20 @@ class MatchingNode(StreamNode):
             for name, publisher in self._output_publishers.items()
             if name not in self.OUTPUT_SWITCHES or self.wanted(publisher, getattr(options, self.OUTPUT_SWITCHES[name]))
         )
+
+
+def camera_info_mismatch(settings: Settings) -> str | None:
+    """Why left/ and right/camera_info do not describe the rectified images a visual odometry node pairs
+    them with, if they do not."""
+    stereo, options = settings.stereo, settings.options
+    if stereo is not None and stereo.downsample > 1 and stereo.downsample_output == "processed":
+        return (
+            f"downsample_output: processed makes left/ and right/image_rect 1/{stereo.downsample} of the size "
+            "left/ and right/camera_info describe; for stereo odometry set downsample_output: full"
+        )
+    if options.left_camera_info_url or options.right_camera_info_url:
+        return (
+            "with left/right_camera_info_url set no camera_info topic describes left/ and right/image_rect; for "
+            "stereo odometry let the driver publish left/ and right/camera_info"
+        )
+    return None
