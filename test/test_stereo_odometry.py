@@ -55,6 +55,11 @@ class ExactPairing:
             ros.node.create_subscription(msg_type, f"{NS}/{name}", self._adder(index), reliable_qos(10))
             for index, (name, msg_type) in enumerate(VO_INPUTS)
         ]
+        # the raw images too, ignored: the replay then waits for this side on every topic it publishes
+        self.subscriptions += [
+            ros.node.create_subscription(Image, f"{NS}/{side}/image_raw", lambda _msg: None, reliable_qos(10))
+            for side in ("left", "right")
+        ]
 
     def _adder(self, index: int) -> Callable[[Any], None]:
         return lambda msg: self._add(index, msg)
@@ -65,12 +70,16 @@ class ExactPairing:
 
 
 def replay_bag(env: dict[str, str]) -> None:
-    command = [sys.executable, "-m", "stereo_depth.cli", "replay", str(BAG), "--wait-for-subscribers", "1"]
+    # two subscribers on every topic: the node, and this file's VO side (which takes the camera_infos from
+    # the bag, as a VO node takes them from the driver, and watches the raw images): none of its first
+    # camera_infos may go out before it is matched
+    command = [sys.executable, "-m", "stereo_depth.cli", "replay", str(BAG), "--wait-for-subscribers", "2"]
+    command += ["--wait-timeout", "60"]
     command += [
         "--topics",
         *(f"{NS}/{side}/{kind}" for side in ("left", "right") for kind in ("image_raw", "camera_info")),
     ]
-    replay = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120, check=False)
+    replay = subprocess.run(command, env=env, capture_output=True, text=True, timeout=180, check=False)
     assert replay.returncode == 0, replay.stderr
 
 
