@@ -141,16 +141,18 @@ def input_pairing(run: Run) -> bool:
     return e2e_tables.pairing(run.work, run.args.quick)
 
 
-def pipeline_stages(run: Run) -> bool:
-    return run.bench("pipeline_stages.py", full=("--repeat", "8"), quick=("--repeat", "2"))
+def repeated(script: str, flag: str, *, full: str, quick: str) -> Callable[[Run], bool]:
+    """A question answered by one bench whose only argument is how often it repeats (`flag`)."""
+    return lambda run: run.bench(script, full=(flag, full), quick=(flag, quick))
 
 
-def census_simd(run: Run) -> bool:
-    return run.bench("simd_match_ratio.py", full=("--repeat", "7"), quick=("--repeat", "2"))
+pipeline_stages = repeated("pipeline_stages.py", "--repeat", full="8", quick="2")
 
 
-def bm_simd(run: Run) -> bool:
-    return run.bench("bm_kernels.py", full=("--repeat", "9"), quick=("--repeat", "2"))
+census_simd = repeated("simd_match_ratio.py", "--repeat", full="7", quick="2")
+
+
+bm_simd = repeated("bm_kernels.py", "--repeat", full="9", quick="2")
 
 
 def kernel_profile(run: Run) -> bool:
@@ -160,16 +162,13 @@ def kernel_profile(run: Run) -> bool:
     return run.bench("kernel_profile.py", full=("--frames", "8"), quick=("--frames", "2"))
 
 
-def clouds(run: Run) -> bool:
-    return run.bench("cloud_outputs.py", full=("--repeat", "10"), quick=("--repeat", "2"))
+clouds = repeated("cloud_outputs.py", "--repeat", full="10", quick="2")
 
 
-def compressed_depth(run: Run) -> bool:
-    return run.bench("compressed_depth.py", full=("--repeat", "4"), quick=("--repeat", "2"))
+compressed_depth = repeated("compressed_depth.py", "--repeat", full="4", quick="2")
 
 
-def compressed_input(run: Run) -> bool:
-    return run.bench("compressed_input.py", full=("--repeat", "10"), quick=("--repeat", "2"))
+compressed_input = repeated("compressed_input.py", "--repeat", full="10", quick="2")
 
 
 def temporal(run: Run) -> bool:

@@ -38,7 +38,6 @@ from stereo_depth.messages.transports import (
     compressed_format,
     compressed_to_pipeline,
     depth_to_compressed_depth,
-    rvl_accepted,
 )
 
 __all__ = [
@@ -73,7 +72,6 @@ __all__ = [
     "in_serialized_bytes",
     "make_header",
     "pack_rgb",
-    "rvl_accepted",
     "same_calibration",
     "stamp_to_ns",
 ]
