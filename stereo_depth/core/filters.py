@@ -18,8 +18,14 @@ def apply_confidence_threshold(match: MatchResult, threshold: float) -> None:
     match.confidence[unsure] = 0.0
 
 
-def fill_holes(disparity: np.ndarray, left: np.ndarray, radius: int) -> np.ndarray:
-    """Dense disparity: background-favouring fill of every hole, smoothed along image edges."""
+def fill_holes(
+    disparity: np.ndarray, left: np.ndarray, radius: int, keep_invalid: np.ndarray | None = None
+) -> np.ndarray:
+    """Dense disparity: background-favouring fill of every hole, smoothed along image edges; the pixels
+    of `keep_invalid` (a detector's verdict that nothing there can be trusted) stay invalid."""
     from stereo_depth.core.census_sgm import fill_holes as edge_aware_fill
 
-    return edge_aware_fill(disparity, left, radius=radius)
+    filled = edge_aware_fill(disparity, left, radius=radius)
+    if keep_invalid is not None:
+        filled[keep_invalid] = np.nan
+    return filled

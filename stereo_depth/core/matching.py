@@ -24,6 +24,7 @@ from stereo_depth.core.threads import opencv_threads, other_core
 class MatchResult:
     disparity: np.ndarray
     confidence: np.ndarray | None = None
+    excluded: np.ndarray | None = None  # bool: invalidated by a detector; no filter may refill these
 
 
 class Matcher(Protocol):

@@ -177,7 +177,9 @@ class StereoPipeline:
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
         if params.fill_holes:
-            match.disparity = fill_holes(match.disparity, grey_small, radius=params.hole_fill_radius)
+            match.disparity = fill_holes(
+                match.disparity, grey_small, radius=params.hole_fill_radius, keep_invalid=match.excluded
+            )
         if factor > 1 and params.downsample_output == "processed":
             camera = self._shrunk(camera, factor) if camera is not None else None
             grey_l, grey_r = grey_small, grey_r_small
@@ -312,3 +314,5 @@ def _enlarge(match: MatchResult, shape: tuple[int, ...], factor: int) -> None:
     match.disparity = cv2.resize(match.disparity * np.float32(factor), size, interpolation=cv2.INTER_NEAREST)
     if match.confidence is not None:
         match.confidence = cv2.resize(match.confidence, size, interpolation=cv2.INTER_NEAREST)
+    if match.excluded is not None:
+        match.excluded = cv2.resize(match.excluded.view(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
