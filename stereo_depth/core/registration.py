@@ -155,8 +155,8 @@ def _close_cracks(projected: np.ndarray, step: np.float32, out: np.ndarray) -> N
                     continue
                 a = projected[v - dv, u - du]
                 b = projected[v + dv, u + du]
-                if a == np.inf or b == np.inf:
-                    continue
+                if not (a < z and b < z) or a == np.inf or b == np.inf:
+                    continue  # only a pixel farther than both (or empty) is a crack
                 near = min(a, b)
                 if abs(a - b) > step * near:
                     continue  # an edge: the pixel between may be occluded

@@ -103,8 +103,7 @@ class MatchingNode(StreamNode):
         if self._colour is not None:  # errors about the colour inputs name their topics
             self.stream.registration.names = ColourNames(*self._colour.names)
 
-    def activate_io(self) -> None:
-        super().activate_io()
+    def open_extra_inputs(self) -> None:
         if self._colour is not None:
             self._colour.open(
                 self.parameters.settings.options,
@@ -114,7 +113,6 @@ class MatchingNode(StreamNode):
                 self.report_bug,
             )
             self._io_timers.append(self.create_timer(1.0, self._colour.flush_when_idle))
-            self.get_logger().info(f"registering depth to {', '.join(self._colour.names)}")
 
     def deactivate_io(self) -> None:
         if self._colour is not None:

@@ -144,12 +144,17 @@ class StereoIONode(Node):
             self.create_timer(1.0, self._flush_when_idle),
             self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True)),
         ]
+        self.open_extra_inputs()
         self._warn_unused_overrides()
-        self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
+        self.get_logger().info(f"ready: inputs {', '.join([*self.topics, *self.extra_topics])}")
 
     def _flush_when_idle(self) -> None:
         if self._pairing is not None and self._pairing.flush_when_idle():
             self.inputs_paused()
+
+    def open_extra_inputs(self) -> None:
+        """At activate, after the stereo inputs: a subclass subscribes the inputs it pairs apart
+        (`extra_topics`, a colour camera), closing them in `deactivate_io`."""
 
     def inputs_paused(self) -> None:
         """The stereo inputs paused (IDLE_FLUSH_S without a message): a subclass gives up waiting for them."""
