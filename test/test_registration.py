@@ -13,12 +13,15 @@ import yaml
 from colour_bag import CAMCHAIN, NS, cam1_in_cam0, colour_info, write_colour_bag
 
 from stereo_depth.bag.reader import read_messages
+from stereo_depth.bag.types import rosbags_types
 from stereo_depth.cli import main
 from stereo_depth.core.camera import CameraInfo
 from stereo_depth.core.pose import Pose
 from stereo_depth.core.registration import PinholeModel, RigidMotion, left_rectified_to_colour, register_depth
 from stereo_depth.errors import ParameterError
 from stereo_depth.formats.kalibr import read_camchain_colour
+from stereo_depth.frames.registered import colour_calibration, undistorted_model
+from stereo_depth.messages import camera_info_to_msg, make_header
 from stereo_depth.nearest_sync import NearestPairing
 from stereo_depth.options import output_options
 
@@ -194,3 +197,32 @@ def test_a_colour_camera_info_without_focal_length_skips_only_the_registered_out
     printed = capsys.readouterr().out
     assert f"skipped 3x: {NS}/rgb/camera_info: no focal length" in printed
     assert len(read_messages(tmp_path / "out", [f"{NS}/depth"])[f"{NS}/depth"]) == 3
+
+
+def test_a_rectified_colour_camera_info_with_only_p_is_accepted() -> None:
+    p = np.array([[500.0, 0.0, 320.0, 0.0], [0.0, 500.0, 240.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    info = colour_calibration(camera_info_to_msg(rosbags_types(), make_header(rosbags_types(), 1, "rgb"), colour_of(p)))
+    assert np.array_equal(info.k, p[:, :3]) and not np.any(info.d)
+    assert undistorted_model(info, "rgb").p.tolist() == p.tolist()
+
+
+def colour_of(p: np.ndarray) -> CameraInfo:
+    """A camera_info of a rectified image that holds only P (K, D and R empty), as some drivers publish."""
+    return CameraInfo.from_values(640, 480, np.zeros((3, 3)), [], np.zeros((3, 3)), p)
+
+
+def test_a_colour_camera_that_stops_shows_in_diagnostics() -> None:
+    from std_msgs.msg import Header
+
+    from stereo_depth.ros.diagnostics import NodeDiagnostics
+
+    stereo = [f"{NS}/left/image_raw", f"{NS}/right/image_raw"]
+    colour = [f"{NS}/rgb/image_raw", f"{NS}/rgb/camera_info"]
+    diagnostics = NodeDiagnostics("/stereo_node", [*stereo, *colour])
+    for topic in stereo:
+        diagnostics.input_received(topic, 1)
+    diagnostics.registration(12)
+    status = diagnostics.report(Header()).status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert f"{NS}/rgb/image_raw (never)" in status.message
+    assert values["frames without a colour image (registered outputs)"] == "12"
