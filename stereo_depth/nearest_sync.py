@@ -26,7 +26,7 @@ from typing import Generic, NamedTuple, TypeVar
 PrimaryT = TypeVar("PrimaryT")
 ExtraT = TypeVar("ExtraT")
 
-KEEP = 8  # stereo sets, and extra messages, kept undecided at most
+KEEP = 16  # stereo sets, and extra messages, kept undecided at most (half a second at 30 Hz)
 
 
 @dataclass
