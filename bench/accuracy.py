@@ -4,11 +4,18 @@ the left-right check (disp12_max_diff) keeps.
     .venv/bin/python bench/accuracy.py profiles SCENE_DIR... [--picture PATH] [--repeat 3] [--markdown]
     .venv/bin/python bench/accuracy.py confidence SCENE_DIR... [--profile quality] [--threshold 0.5]
     .venv/bin/python bench/accuracy.py left-right SCENE_DIR...
+    .venv/bin/python bench/accuracy.py registration --data DIR [--profile default]
 
 profiles: each profile's mean bad-2, bad-2 of the estimated pixels, density and time per scene (the best
 of --repeat), `default` first (the baseline of the ratio); --picture draws the first scene (left | ground
 truth | each profile). Bundled scenes: test/data/scenes; larger sets (Middlebury, KITTI) are passed as
 folders of scene folders, as `--data DIR` does for `make bench-docs`.
+
+registration: depth registered to a colour camera, checked against ground truth. Each scene under DIR
+with a right-view ground truth (disp_gt_right.png) is one frame through the frame stream, its right image
+given again as the colour camera (rgb/image_raw + rgb/camera_info) with rgb_in_left the baseline along x;
+the registered depth, as disparity, is compared with the right ground truth, on the right pixels the left
+camera sees, beside the left disparity on the left pixels the right camera sees.
 """
 
 from __future__ import annotations
@@ -24,12 +31,16 @@ import numpy as np
 from stereo_depth.core.metrics import Accuracy, accuracy, colorize_disparity, label
 from stereo_depth.core.params import PROFILES, make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.formats.scenes import Scene, load_scene
+from stereo_depth.formats.scenes import Scene, load_scene, read_ground_truth
 
 sys.path.insert(0, str(Path(__file__).parent))
 from lib.table import parse_bench_arguments, table_header, table_row, times
 
 DISP12_SETTINGS = (-1, 0, 1, 3)  # check off, stereo_image_proc's value, 1 and 3 px
+# the calibration given to scenes without one: disparity is what is compared, so any focal length and
+# baseline do
+FOCAL_PX, BASELINE_M = 1000.0, 0.1
+SEEN_PX = 1.0  # a pixel is seen by the other camera where both ground truths agree within this
 
 
 def scenes_with_truth(folders: list[Path]) -> list[Scene]:
@@ -126,6 +137,93 @@ def left_right(args: argparse.Namespace) -> None:
             print(table_row((folder.name, matcher, *cells)), flush=True)
 
 
+def right_scenes(data: Path) -> list[Path]:
+    found = sorted(path.parent for path in data.rglob("disp_gt_right.png"))
+    if not found:
+        raise SystemExit(f"ERROR: no scene under {data} has a right ground truth (disp_gt_right.png)")
+    return found
+
+
+def seen_by_other(gt: np.ndarray, other: np.ndarray, sign: int) -> np.ndarray:
+    """The pixels of `gt`'s view that the other camera sees: the other view's ground truth at the pixel
+    this one's disparity leads to (x - d from left to right: sign -1) agrees within SEEN_PX."""
+    height, width = gt.shape
+    rows, columns = np.mgrid[0:height, 0:width]
+    valid = np.isfinite(gt)
+    target = np.rint(columns + sign * np.where(valid, gt, 0)).astype(np.int64)
+    inside = valid & (target >= 0) & (target < width)
+    seen = np.zeros(gt.shape, bool)
+    seen[inside] = np.abs(other[rows[inside], target[inside]] - gt[inside]) <= SEEN_PX
+    return seen
+
+
+def registered_disparity(scene: Scene, profile: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """(left disparity, the right camera's registered depth as disparity, registration ms) of one scene
+    through the frame stream, the right image given again as the colour camera."""
+    from stereo_depth.bag.types import rosbags_types
+    from stereo_depth.core.camera import CameraInfo
+    from stereo_depth.core.pose import Pose
+    from stereo_depth.frames import FrameStream
+    from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
+    from stereo_depth.options import OutputOptions
+    from stereo_depth.sync import StereoSet
+
+    types = rosbags_types()
+    height, width = scene.left.shape[:2]
+    k = np.array([[FOCAL_PX, 0.0, width / 2.0], [0.0, FOCAL_PX, height / 2.0], [0.0, 0.0, 1.0]])
+    infos = [
+        CameraInfo.from_values(width, height, k, np.zeros(5), np.eye(3), np.hstack([k, [[offset], [0.0], [0.0]]]))
+        for offset in (0.0, -FOCAL_PX * BASELINE_M, 0.0)  # left, right, the colour camera (the right one)
+    ]
+    header = make_header(types, 1, "left")
+    colour_header = make_header(types, 1, "colour")
+    left, right = (array_to_image(types, header, image) for image in (scene.left, scene.right))
+    inputs = StereoSet(
+        1, left, camera_info_to_msg(types, header, infos[0]), right, camera_info_to_msg(types, header, infos[1])
+    )
+    output = OutputOptions(rgb_in_left=Pose.from_list([BASELINE_M, 0, 0, 0, 0, 0, 1]))
+    stream = FrameStream(
+        types, make_params(profile, {"disparity_range": scene.disparity_range()}), output, rectified=True
+    )
+    stream.registration.add_colour(
+        array_to_image(types, colour_header, scene.right), camera_info_to_msg(types, colour_header, infos[2])
+    )
+    out = stream.match(inputs, ())
+    assert out.cloud is not None
+    jobs = out.cloud.run().registered
+    jobs[0].run(("depth_registered/image_rect",))  # loads the kernels
+    messages, ms = jobs[0].run(("depth_registered/image_rect",))
+    depth = np.frombuffer(bytes(messages["depth_registered/image_rect"].data), np.float32).reshape(height, width)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return out.disparity, (FOCAL_PX * BASELINE_M / depth).astype(np.float32), ms
+
+
+def registration(args: argparse.Namespace) -> None:
+    """Per scene: bad-2 over estimated pixels and density of the left disparity and of the registered depth."""
+    print(f"profile `{args.profile}`; left: on the left pixels the right camera sees; registered: on the right")
+    print("pixels the left camera sees (its depth as disparity, against the right ground truth):")
+    columns = ("scene", "left bad-2 of est.", "registered bad-2 of est.", "difference", "left density")
+    print(table_header((*columns, "registered density", "ratio", "registration ms")))
+    for folder in right_scenes(args.data):
+        scene = load_scene(folder)
+        right_gt = read_ground_truth(folder, {**scene.calib, "gt_file": "disp_gt_right.png"})
+        assert scene.gt is not None and right_gt is not None
+        left, registered, ms = registered_disparity(scene, args.profile)
+        mine = accuracy(left, scene.gt, seen_by_other(scene.gt, right_gt, -1))
+        theirs = accuracy(registered, right_gt, seen_by_other(right_gt, scene.gt, 1))
+        cells = (
+            scene.name,
+            f"{mine.bad2_est:.4f}",
+            f"{theirs.bad2_est:.4f}",
+            f"{theirs.bad2_est - mine.bad2_est:+.4f}",
+            f"{mine.density:.3f}",
+            f"{theirs.density:.3f}",
+            times(theirs.density / mine.density),
+            f"{ms:.1f}",
+        )
+        print(table_row(cells), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     questions = parser.add_subparsers(dest="question", required=True)
@@ -142,8 +240,13 @@ def main() -> None:
     for question in questions.choices.values():
         question.add_argument("scenes", nargs="+", type=Path)
         question.add_argument("--markdown", action="store_true", help="(always markdown tables)")
+    registered = questions.add_parser("registration", help="registered depth against the right ground truth")
+    registered.add_argument("--data", type=Path, required=True, help="searched for scenes with disp_gt_right.png")
+    registered.add_argument("--profile", default="default", choices=sorted(PROFILES))
+    registered.add_argument("--markdown", action="store_true", help="(always markdown tables)")
     args = parse_bench_arguments(parser, "(always markdown tables)")
-    {"profiles": profiles, "confidence": confidence, "left-right": left_right}[args.question](args)
+    run = {"profiles": profiles, "confidence": confidence, "left-right": left_right, "registration": registration}
+    run[args.question](args)
 
 
 if __name__ == "__main__":
