@@ -166,7 +166,9 @@ class NodeOptions:
         "Publish points2_clearing: a point along the ray of each pixel matched beyond max_depth or at the "
         "smallest disparity, for costmaps to clear free space with (stereo_node)",
     )
-    publish_confidence: bool = option(True, "Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
+    publish_confidence: bool = option(
+        True, "Publish confidence (32FC1, 0..1: how likely each disparity is right; 0 where invalid)"
+    )
     calibration_check: bool = option(True, "Check now and then that rectified rows still agree (report in diagnostics)")
     calibration_check_every_n_frames: int = option(
         30, "Run the calibration check on one frame in this many", 1, 100000, 1

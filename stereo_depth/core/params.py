@@ -29,7 +29,7 @@ class StereoParams:
     matcher: str = option(
         "sgbm",
         "Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global), "
-        "census_sgm (our census + 6-path semi-global core with confidence)",
+        "census_sgm (our census + 6-path semi-global core)",
         choices=MATCHER_NAMES,
     )
     prefilter_size: int = option(9, "BM normalization window size in pixels (odd)", 5, 255, 2)
@@ -67,7 +67,11 @@ class StereoParams:
         choices=(6, 8, 5),
     )
     confidence_threshold: float = option(
-        0.0, "Invalidate pixels whose match confidence is below this (cores with confidence)", 0.0, 1.0
+        0.0,
+        "Invalidate pixels whose match confidence is below this (every matcher; one scale: a threshold keeps "
+        "about the same share of pixels whichever matcher runs)",
+        0.0,
+        1.0,
     )
     fill_holes: bool = option(False, "Fill invalid pixels from their neighbours for a dense depth image")
     hole_fill_radius: int = option(

@@ -19,6 +19,7 @@ import numpy as np
 from stereo_depth.core.block_matching import compile_kernels as compile_bm_kernels
 from stereo_depth.core.block_matching import use_our_bm
 from stereo_depth.core.camera import CameraInfo, StereoCamera
+from stereo_depth.core.confidence import neighbourhood_confidence
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
@@ -173,6 +174,8 @@ class StereoPipeline:
         grey_small, grey_r_small = (_writable(image) for image in _shrink(grey_l, grey_r, factor))
         _check_matchable(grey_small, _scaled(params, factor))
         match = matcher.compute(grey_small, grey_r_small)
+        if match.confidence is None:  # the OpenCV-compatible matchers: read from their disparity
+            match.confidence = neighbourhood_confidence(match.disparity, params.matcher)
         t2 = time.perf_counter()
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
