@@ -93,6 +93,14 @@ class OutputOptions:
         0.1,
         1e4,
     )
+    # too near for the disparity range
+    near_points: str = option(
+        "invalid",
+        "Pixels too near for disparity_range (near_detection) in points2: invalid (no point) or range_limit "
+        "(one point each along its ray at the nearest depth the range can see: a costmap marks an obstacle "
+        "at least that near); mask_image and min_depth still apply, depth and points2_clearing never have them",
+        choices=("invalid", "range_limit"),
+    )
     compressed_depth_format: str = option(
         "png",
         "depth/compressedDepth codec: png or rvl (image_transport's compressedDepth format); rvl sends a "

@@ -65,7 +65,7 @@ def test_confidence_threshold_drops_the_unsure_pixels_of_opencv_matchers(matcher
 def test_threshold_zero_leaves_opencvs_disparity_bit_identical(profile: str) -> None:
     """The confidence is computed beside the disparity and changes none of it."""
     scene = load_scene(SCENES / "cones")
-    params = make_params(profile, {"fill_holes": False, "downsample": 1})
+    params = make_params(profile, {"fill_holes": False, "downsample": 1, "near_detection": False})
     result = StereoPipeline(params).match(scene.left, scene.right, None, rectified=True)
     grey = (result.left_rect, result.right_rect)
     assert result.confidence is not None

@@ -73,6 +73,14 @@ class StereoParams:
         0.0,
         1.0,
     )
+    # too near for the disparity range
+    near_detection: bool = option(
+        True,
+        "Invalidate the pixels nearer than disparity_range can see (true disparity beyond it), which a "
+        "matcher would put farther away: found by a coarse search over twice the range at 1/4 resolution "
+        "and by the cost still falling at the range's top; they stay out of disparity, depth, points2 and "
+        "points2_clearing, and fill_holes leaves them (near_points puts them in points2)",
+    )
     fill_holes: bool = option(False, "Fill invalid pixels from their neighbours for a dense depth image")
     hole_fill_radius: int = option(
         3, "Edge-aware smoothing radius of filled pixels (0 = plain background fill)", 0, 7, 1
@@ -233,6 +241,7 @@ _STEREO_IMAGE_PROC: dict[str, Any] = {
     "P1": 200.0,
     "P2": 400.0,
     "sgbm_mode": 0,
+    "near_detection": False,  # stereo_image_proc outputs too-near pixels as whatever the matcher gave
 }
 
 # The dataclass defaults are the recommended profile (semi-global, 3-way, small window, LR check).
