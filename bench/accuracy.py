@@ -6,16 +6,19 @@ the left-right check (disp12_max_diff) keeps.
     .venv/bin/python bench/accuracy.py left-right SCENE_DIR...
     .venv/bin/python bench/accuracy.py sparsification SCENE_DIR...
     .venv/bin/python bench/accuracy.py too-near SCENE_DIR... [--range 64]
+    .venv/bin/python bench/accuracy.py removed SCENE_DIR...
     .venv/bin/python bench/accuracy.py check-cost SCENE_DIR [--repeat 15]
 
 sparsification: per matcher (as its profile runs it, nothing filled), confidence threshold against the
 share of the valid pixels kept and bad-2 of those, pooled over the scenes; then the threshold that keeps
-80 % and its bad-2 against all valid pixels'. too-near: the scenes whose ground truth exceeds --range,
+80 % and its bad-2 against that of all valid pixels. too-near: the scenes whose ground truth exceeds --range,
 run at it with near_detection off and on: the share of the pixels beyond the range (ground truth at
 least 2 px past its top: nearer, output at the top, is right within 2 px) output valid, the density of
 those within it (2 px below its top), and the beyond-range pixels that would cast a clearing ray (at the
-smallest disparity searched); strict: the same with no 2 px margin. check-cost: at 640x480, the time of
-the confidence and of too-near detection against the match's, interleaved, per matcher.
+smallest disparity searched); strict: the same with no 2 px margin. removed: at each
+scene's own range, what near_detection removes from `default` and `quality`, and the bad-2 of the
+estimated pixels that follows. check-cost: at 640x480, the time of the confidence and of too-near
+detection against the match's, interleaved, per matcher.
 
 profiles: each profile's mean bad-2, bad-2 of the estimated pixels, density and time per scene (the best
 of --repeat), `default` first (the baseline of the ratio); --picture draws the first scene (left | ground
@@ -224,6 +227,44 @@ def too_near(args: argparse.Namespace) -> None:
             print(table_row((*cells, f"{int(sums[3])}", f"{sums[4] / n:.3f}", f"{sums[5] / n:.3f}")), flush=True)
 
 
+def removed_pixels(args: argparse.Namespace) -> None:
+    """What near_detection changes at each scene's own disparity range: the pixels it removes, and how the
+    bad-2 of the estimated pixels follows from them (pooled counts: after = (bad before - bad removed) /
+    (valid before - removed), when nothing is added)."""
+    scenes = scenes_with_truth(args.scenes)
+    print(f"{len(scenes)} scenes at their own disparity range; ground-truth pixels pooled over the scenes")
+    columns = ("profile", "valid before", "bad-2 of est. before", "removed", "of them bad", "added")
+    print(table_header((*columns, "bad-2 of est. after", "from the removed", "density before / after")))
+    for profile in ("default", "quality"):
+        sums = np.zeros(7)
+        for scene in scenes:
+            assert scene.gt is not None
+            counted = evaluation_mask(scene.gt, scene.mask)
+            runs = []
+            for detection in (False, True):
+                params = make_params(profile, {"disparity_range": scene.disparity_range(), "near_detection": detection})
+                disparity = StereoPipeline(params).match(scene.left, scene.right, None, rectified=True).disparity
+                with np.errstate(invalid="ignore"):
+                    runs.append((np.isfinite(disparity) & counted, np.abs(disparity - scene.gt) > 2.0))
+            (before, bad_before), (after, bad_after) = runs
+            removed = before & ~after
+            sums += [
+                counted.sum(),
+                before.sum(),
+                (before & bad_before).sum(),
+                removed.sum(),
+                (removed & bad_before).sum(),
+                (after & ~before).sum(),
+                (after & bad_after).sum(),
+            ]
+        total, valid, bad, removed_n, removed_bad, added, bad_after_n = sums
+        predicted = (bad - removed_bad) / (valid - removed_n)
+        cells = (f"`{profile}`", f"{int(valid)}", f"{bad / valid:.4f}", f"{int(removed_n)}", f"{int(removed_bad)}")
+        after_cells = (f"{bad_after_n / (valid - removed_n + added):.4f}", f"{predicted:.4f}")
+        density = f"{valid / total:.4f} / {(valid - removed_n + added) / total:.4f}"
+        print(table_row((*cells, f"{int(added)}", *after_cells, density)), flush=True)
+
+
 def check_cost(args: argparse.Namespace) -> None:
     """Medians of interleaved runs on one scene resized to 640x480, each matcher as its profile runs it
     (at its downsample): the match, the confidence read from its disparity and too-near detection."""
@@ -285,6 +326,7 @@ def main() -> None:
     questions.add_parser("sparsification", help="per matcher: confidence threshold against pixels kept and bad-2")
     near = questions.add_parser("too-near", help="pixels beyond the disparity range: valid, density, clearing rays")
     near.add_argument("--range", type=int, default=64)
+    questions.add_parser("removed", help="near_detection at each scene's own range: pixels removed, bad-2 after")
     cost = questions.add_parser("check-cost", help="confidence and too-near detection time against the match's")
     cost.add_argument("--repeat", type=int, default=15)
     for question in questions.choices.values():
@@ -297,6 +339,7 @@ def main() -> None:
         "left-right": left_right,
         "sparsification": sparsification,
         "too-near": too_near,
+        "removed": removed_pixels,
         "check-cost": check_cost,
     }
     questions_run[args.question](args)

@@ -243,23 +243,11 @@ class Geometry(NamedTuple):
     nearest_depth: float = 0.0  # metres: the nearest depth the disparity range can see
 
 
-class Verdicts(NamedTuple):
-    """What the checks after matching said of each pixel (core/match_checks.py), at the output size."""
-
-    confidence: np.ndarray | None = None
-    too_near: np.ndarray | None = None  # nearer than the disparity range can see
-
-
-NO_VERDICTS = Verdicts()
-CLEARING_CONFIDENCE = 0.9  # a pixel at the smallest disparity casts a clearing ray only this sure of it
-
-
 def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: StereoResult) -> Geometry:
     """Depth of a `match` result, its disparity as matched."""
     assert result.camera is not None
     image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-    verdicts = Verdicts(result.confidence, result.too_near)
-    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image, verdicts)
+    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image, result.too_near)
 
 
 def disparity_geometry(
@@ -268,22 +256,19 @@ def disparity_geometry(
     camera: StereoCamera,
     disparity: np.ndarray,
     image: np.ndarray,
-    verdicts: Verdicts = NO_VERDICTS,
+    too_near: np.ndarray | None = None,
 ) -> Geometry:
     """Depth of a frame's disparity (not offset-adjusted, at the size of `camera`); the pixels matched at
-    the smallest disparity searched are marked for points2_clearing, those the matcher is sure of (a
-    surface too near for the range, matched there, would clear the real obstacle: 3,072 such rays on the
-    Middlebury scenes that exceed 64 px at 64, none at confidence CLEARING_CONFIDENCE)."""
+    the smallest disparity searched are marked for points2_clearing, those too near for the range for
+    `near_points`."""
     depth = disparity_to_depth(disparity, camera)
     params = pipeline.params
     step = 1 if params.downsample_output == "processed" else params.downsample  # one matcher step, output px
     with np.errstate(invalid="ignore"):  # NaN: not matched
         saturated = disparity < np.float32(output_params(params).min_disparity + step)
-    if verdicts.confidence is not None:
-        saturated &= verdicts.confidence >= np.float32(CLEARING_CONFIDENCE)
     nearest = nearest_matchable_depth(params, camera)
     rays = pipeline.rays_for(camera)
-    return Geometry(depth, camera, rays, image, frame.camera, saturated, verdicts.too_near, nearest)
+    return Geometry(depth, camera, rays, image, frame.camera, saturated, too_near, nearest)
 
 
 def nearest_matchable_depth(params: StereoParams, camera: StereoCamera) -> float:

@@ -31,10 +31,8 @@ from stereo_depth.errors import ImageError, StereoDepthError
 from stereo_depth.frames.decode import INPUT_NAMES, InputNames, StereoFrame, decode_frame, match_frame, named_errors
 from stereo_depth.frames.outputs import (
     GEOMETRY_OUTPUTS,
-    NO_VERDICTS,
     Geometry,
     OutputState,
-    Verdicts,
     disparity_geometry,
     filtered_disparity,
     geometry_outputs,
@@ -81,9 +79,9 @@ class CloudJob:
         *,
         offset_adjusted: bool = False,
         with_geometry: bool = False,
-        verdicts: Verdicts = NO_VERDICTS,
+        too_near: np.ndarray | None = None,
     ) -> None:
-        self._stream, self.frame, self._camera, self._verdicts = stream, frame, camera, verdicts
+        self._stream, self.frame, self._camera, self._too_near = stream, frame, camera, too_near
         self._disparity, self._image, self._output = disparity, image, output
         self.wanted, self._offset_adjusted, self._with_geometry = frozenset(wanted), offset_adjusted, with_geometry
 
@@ -95,7 +93,7 @@ class CloudJob:
             geometry = Geometry(depth, camera, stream.pipeline.rays_for(camera), self._image, camera)
         else:
             geometry = disparity_geometry(
-                stream.pipeline, self.frame, camera, self._disparity, self._image, self._verdicts
+                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near
             )
         depth_ms = (time.perf_counter() - start) * 1000.0
         start = time.perf_counter()
@@ -194,7 +192,7 @@ class FrameStream:
                     output,
                     due,
                     with_geometry=with_geometry,
-                    verdicts=Verdicts(result.confidence, result.too_near),
+                    too_near=result.too_near,
                 )
         changed = self._calibration_changed(frame.camera)
         return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms)
