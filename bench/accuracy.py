@@ -39,6 +39,7 @@ import numpy as np
 
 from stereo_depth.core.confidence import neighbourhood_confidence
 from stereo_depth.core.matching import create_matcher
+from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.metrics import Accuracy, accuracy, colorize_disparity, evaluation_mask, label
 from stereo_depth.core.params import PROFILES, StereoParams, make_params
 from stereo_depth.core.pipeline import StereoPipeline, to_grey8
@@ -268,6 +269,7 @@ def removed_pixels(args: argparse.Namespace) -> None:
 def check_cost(args: argparse.Namespace) -> None:
     """Medians of interleaved runs on one scene resized to 640x480, each matcher as its profile runs it
     (at its downsample): the match, the confidence read from its disparity and too-near detection."""
+    keep_freed_memory()  # as StereoPipeline does: each frame's arrays reuse the last frame's pages
     scene = load_scene(args.scenes[0])
     left, right = (
         cv2.resize(to_grey8(image, 1.0), VGA, interpolation=cv2.INTER_AREA) for image in (scene.left, scene.right)

@@ -1,7 +1,7 @@
 """A surface nearer than the disparity range can see never comes out far away: on real Middlebury scenes
 run with a range their ground truth exceeds, those pixels are invalid in the disparity, hole filling
 leaves them, they cast no clearing ray, and `near_points: range_limit` puts them in points2 at the
-nearest depth the range sees."""
+nearest depth the range sees; diagnostics say how many and how near."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from std_msgs.msg import Header
 
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.core.camera import StereoCamera
@@ -20,6 +21,7 @@ from stereo_depth.frames.decode import StereoFrame
 from stereo_depth.frames.outputs import OutputState, geometry_outputs, nearest_matchable_depth, result_geometry
 from stereo_depth.messages import cloud_to_arrays, make_header
 from stereo_depth.options import OutputOptions
+from stereo_depth.ros.diagnostics import RECENT_FRAMES, NodeDiagnostics
 
 from conftest import SCENES
 
@@ -99,3 +101,13 @@ def test_too_near_pixels_cast_no_clearing_ray_and_range_limit_puts_them_at_the_n
     v = np.rint(camera.fy * y / z + camera.cy).astype(int)
     assert not beyond[v, u].any()
     assert bytes(limited["points2_clearing"].data) == bytes(plain["points2_clearing"].data)
+
+
+def test_diagnostics_report_the_too_near_share_and_warn_while_it_stays_high() -> None:
+    diagnostics = NodeDiagnostics("/n", [])
+    assert not any(diagnostics.too_near(0.02, 0.75) for _ in range(RECENT_FRAMES))
+    warnings = [diagnostics.too_near(0.4, 0.75) for _ in range(RECENT_FRAMES)]
+    assert not warnings[0] and "0.75 m" in warnings[-1] and "disparity_range" in warnings[-1]
+    values = {kv.key: kv.value for kv in diagnostics.report(Header()).status[0].values}
+    assert values["too near for disparity_range (share of pixels)"] == "0.400"
+    assert values["nearest matchable depth (m)"] == "0.750"
