@@ -74,6 +74,7 @@ class StereoNode(MatchingNode):
         *CLOUD_OPTIONS,
         "depth_encoding",
         "clearing_max_depth",
+        "near_points",
         "compressed_depth_format",
         "compressed_depth_max_depth",
         "compressed_depth_quantization",
