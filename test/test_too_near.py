@@ -13,6 +13,8 @@ from std_msgs.msg import Header
 
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.match_checks import MatchChecks
+from stereo_depth.core.matching import MatchResult
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
@@ -60,6 +62,21 @@ def test_hole_filling_leaves_too_near_pixels_invalid() -> None:
     assert np.isnan(result.disparity[result.too_near]).all()
     assert np.isfinite(result.disparity[~result.too_near]).mean() > 0.99
     assert result.confidence is not None and np.all(result.confidence[result.too_near] == 0.0)
+
+
+def test_a_sure_match_at_the_smallest_disparity_goes_where_the_coarse_search_sees_it_nearer() -> None:
+    """A cost curve that wrapped round can put a near surface at the smallest disparity with full
+    confidence (census_sgm did on Middlebury Dolls at 64): where the coarse search puts it well inside
+    the range it is dropped, so it casts no clearing ray."""
+    scene = load_scene(SCENES / "cones")
+    assert scene.gt is not None
+    shape = scene.gt.shape
+    match = MatchResult(np.zeros(shape, np.float32), np.ones(shape, np.float32))
+    left, right = (np.ascontiguousarray(image[:, :, 1]) for image in (scene.left, scene.right))
+    MatchChecks(make_params("quality", {"disparity_range": RANGE})).apply(match, left, right)
+    inside = evaluation_mask(scene.gt, scene.mask) & (scene.gt >= RANGE / 2) & (scene.gt < RANGE - MARGIN)
+    assert inside.mean() > 0.2
+    assert np.isfinite(match.disparity[inside]).mean() < 0.1
 
 
 def artl_outputs(near_points: str) -> tuple[dict[str, Any], StereoCamera, np.ndarray]:

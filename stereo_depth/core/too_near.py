@@ -28,6 +28,7 @@ COARSE_LEVELS = 16  # the coarse search sees the range in at least this many ste
 COARSE_FACTORS = (4, 2)  # 1/4 the matched ones' size, or 1/2 where that would see too few
 COARSE_SPAN = 2  # it searches this many times the range
 COARSE_WINDOW = 3
+NEARER_SHARE = 4  # a coarse disparity this fraction of the range above the smallest is no far surface
 COARSE_P1, COARSE_P2 = 8, 32  # per pixel of the window: OpenCV's suggested penalties for grey images
 
 
@@ -37,6 +38,7 @@ class TooNearDetector:
 
     def __init__(self, params: StereoParams) -> None:
         self._top = params.min_disparity + params.disparity_range - 1  # the largest disparity searched
+        self._nearer = params.min_disparity + params.disparity_range // NEARER_SHARE
         factors = [f for f in COARSE_FACTORS if params.disparity_range // f >= COARSE_LEVELS]
         self._factor = factors[0] if factors else COARSE_FACTORS[-1]
         self._min_disparity = params.min_disparity // self._factor
@@ -54,14 +56,15 @@ class TooNearDetector:
             mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
         )
 
-    def detect(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
-        """bool mask of the pixels too near, for a pair of matched images and the disparity matched."""
+    def detect(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For a pair of matched images and the disparity matched, bool masks of (the pixels too near,
+        those the coarse search puts in the range's nearer three quarters or beyond)."""
         height, width = left.shape
         with np.errstate(invalid="ignore"):  # NaN: not matched
             near: np.ndarray = disparity >= np.float32(self._top)
         small = (width // self._factor, height // self._factor)
         if small[1] <= COARSE_WINDOW:  # too few rows to search at the coarse size
-            return near
+            return near, np.zeros_like(near)
         pad = self._disparities + max(self._min_disparity, 0)  # the search's blind left border
         coarse_left, coarse_right = (
             cv2.copyMakeBorder(
@@ -69,11 +72,12 @@ class TooNearDetector:
             )
             for image in (left, right)
         )
-        coarse = self._coarse.compute(coarse_left, coarse_right)[:, pad:]
-        # at or beyond the top, in 1/16 px of the coarse images
-        beyond = (coarse.astype(np.int32) * self._factor >= self._top * 16).view(np.uint8)
-        near |= cv2.resize(beyond, (width, height), interpolation=cv2.INTER_NEAREST) > 0
-        return near
+        coarse = self._coarse.compute(coarse_left, coarse_right)[:, pad:].astype(np.int32) * self._factor
+        # in 1/16 px of the matched images: bit 1 at or beyond the top, bit 2 nearer than the far quarter
+        verdict = (coarse >= self._top * 16).view(np.uint8) | ((coarse >= self._nearer * 16).view(np.uint8) << 1)
+        verdict = cv2.resize(verdict, (width, height), interpolation=cv2.INTER_NEAREST)
+        near |= (verdict & 1) > 0
+        return near, verdict >= 2
 
 
 def exclude_too_near(match: MatchResult, near: np.ndarray) -> None:
