@@ -51,7 +51,7 @@ class TooNearDetector:
             blockSize=COARSE_WINDOW,
             P1=COARSE_P1 * area,
             P2=COARSE_P2 * area,
-            disp12MaxDiff=-1,
+            disp12MaxDiff=self._disparities,  # no left-right check (OpenCV takes -1 and 0 as 1 px)
             uniquenessRatio=0,
             mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
         )
