@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from stereo_depth.core.confidence import neighbourhood_confidence
+from stereo_depth.core.filters import fill_holes
 from stereo_depth.core.matching import MatchResult
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.too_near import TooNearDetector, exclude_too_near
+from stereo_depth.core.too_near import TooNearDetector, exclude_too_near, unfounded_fill
 
 FAR_CONFIDENCE = 0.9  # a pixel at the smallest disparity searched is kept only this sure of it
 
@@ -27,6 +28,7 @@ class MatchChecks:
     def __init__(self, params: StereoParams) -> None:
         self._matcher = params.matcher
         self._near = TooNearDetector(params) if params.near_detection else None
+        self._range = params.disparity_range
         self._smallest = np.float32(params.min_disparity + 1)  # below: matched at the smallest disparity
 
     def apply(self, match: MatchResult, left: np.ndarray, right: np.ndarray) -> None:
@@ -34,11 +36,21 @@ class MatchChecks:
             match.confidence = neighbourhood_confidence(match.disparity, self._matcher)
         if self._near is None:
             return
-        near, not_far = self._near.detect(left, right, match.disparity)
+        verdict = self._near.detect(left, right, match.disparity)
         with np.errstate(invalid="ignore"):  # NaN: not matched
             unsure_far = (match.disparity < self._smallest) & (
-                (match.confidence < np.float32(FAR_CONFIDENCE)) | not_far
+                (match.confidence < np.float32(FAR_CONFIDENCE)) | verdict.not_far
             )
         match.disparity[unsure_far] = np.nan
         match.confidence[unsure_far] = 0.0
-        exclude_too_near(match, near)
+        exclude_too_near(match, verdict)
+
+    def fill(self, match: MatchResult, left: np.ndarray, radius: int) -> None:
+        """fill_holes, but neither over the too-near pixels nor beside them where the coarse search
+        does not back the fill."""
+        holes = np.isnan(match.disparity)
+        match.disparity = fill_holes(match.disparity, left, radius=radius, keep_invalid=match.excluded)
+        unfounded = unfounded_fill(match, holes, self._range)
+        if unfounded.any():
+            match.disparity[unfounded] = np.nan
+            match.excluded = unfounded if match.excluded is None else match.excluded | unfounded
