@@ -8,8 +8,9 @@ matchers see:
 
   * a coarse search beyond the range: SGBM at 1/4 resolution over twice the range (1/32 of the full
     search's disparity-pixels), its images padded on the left so that the left border is searched too,
-    without a left-right check (it failed on a fifth to a half of the too-near pixels that `fast`
-    refilled): a pixel it puts at or beyond the range's top is too near;
+    with a left-right check loose by a quarter of that search (at 1 px it failed on a fifth to a half
+    of the too-near pixels that `fast` refilled): a pixel it puts at or beyond the range's top is too
+    near;
   * the cost still falling at the top of the range: a pixel matched at the largest disparity searched.
 
 The coarse verdict is blocky to one of its pixels, so hole filling would carry the background over the
@@ -36,6 +37,7 @@ COARSE_LEVELS = 16  # the coarse search sees the range in at least this many ste
 COARSE_FACTORS = (4, 2)  # 1/4 the matched ones' size, or 1/2 where that would see too few
 COARSE_SPAN = 2  # it searches this many times the range
 COARSE_WINDOW = 3
+COARSE_LR_SHARE = 4  # its left-right check allows this share of its search (OpenCV's -1 means 1 px)
 NEARER_SHARE = 4  # a coarse disparity this fraction of the range above the smallest is no far surface
 FILL_TOLERANCE = 1 / 8  # a fill beside too-near pixels this share of the range from the coarse search stays
 COARSE_P1, COARSE_P2 = 8, 32  # per pixel of the window: OpenCV's suggested penalties for grey images
@@ -60,7 +62,7 @@ class TooNearDetector:
             blockSize=COARSE_WINDOW,
             P1=COARSE_P1 * area,
             P2=COARSE_P2 * area,
-            disp12MaxDiff=self._disparities,  # no left-right check (OpenCV takes -1 and 0 as 1 px)
+            disp12MaxDiff=max(1, self._disparities // COARSE_LR_SHARE),
             uniquenessRatio=0,
             mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
         )
