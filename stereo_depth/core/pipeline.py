@@ -19,7 +19,7 @@ import numpy as np
 from stereo_depth.core.block_matching import compile_kernels as compile_bm_kernels
 from stereo_depth.core.block_matching import use_our_bm
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
+from stereo_depth.core.filters import apply_confidence_threshold
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.match_checks import MatchChecks
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
@@ -180,9 +180,7 @@ class StereoPipeline:
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
         if params.fill_holes:
-            match.disparity = fill_holes(
-                match.disparity, grey_small, radius=params.hole_fill_radius, keep_invalid=match.excluded
-            )
+            checks.fill(match, grey_small, params.hole_fill_radius)  # not over too-near pixels
         if factor > 1 and params.downsample_output == "processed":
             camera = self._shrunk(camera, factor) if camera is not None else None
             grey_l, grey_r = grey_small, grey_r_small
