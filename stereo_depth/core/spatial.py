@@ -1,0 +1,83 @@
+"""Spatial filter: edge-preserving smoothing of the disparity within each surface.
+
+The recursive form of the domain transform (Gastal and Oliveira, "Domain Transform for Edge-Aware Image
+and Video Processing", SIGGRAPH 2011), guided by the disparity itself, with the step weight RealSense's
+spatial filter uses: along each row, left to right and back, then along each column, down and back up,
+a pixel's value becomes `alpha` of its own plus `1 - alpha` of its smoothed neighbour's, where the two
+lie within `delta` px of each other (one surface); a larger step is a depth edge, and the smoothing
+starts anew behind it. Invalid pixels (NaN) are skipped and break the chain: nothing is filled, nothing
+invalid spreads, the set of valid pixels never changes. `iterations` repeats the four passes (a wider
+reach). Deterministic (no fastmath), so live and offline give the same bytes. numba-compiled on first
+use, then cached.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SpatialSettings:
+    """The filter's parameters (the `spatial_*` processing options)."""
+
+    alpha: float = 0.5  # a pixel's own weight: 1 leaves the disparity as it is
+    delta: float = 2.0  # px: a larger step between neighbours is a depth edge
+    iterations: int = 2
+
+
+def spatial_filter(disparity: np.ndarray, settings: SpatialSettings) -> np.ndarray:
+    """The smoothed disparity (float32, NaN invalid, as given), a new array."""
+    out = np.ascontiguousarray(disparity, np.float32).copy()
+    _kernels()["smooth"](out, np.float32(settings.alpha), np.float32(settings.delta), settings.iterations)
+    return out
+
+
+def compile_kernels() -> None:
+    """Compile the kernel (or load it from numba's cache) now, so that no frame waits for it."""
+    spatial_filter(np.ones((2, 2), np.float32), SpatialSettings())
+
+
+def _smooth(disparity: np.ndarray, alpha: np.float32, delta: np.float32, iterations: int) -> None:
+    """In place: `iterations` times the four recursive passes."""
+    height, width = disparity.shape
+    keep = np.float32(1.0) - alpha
+    for _ in range(iterations):
+        for y in range(height):
+            row = disparity[y]
+            for x in range(1, width):
+                _blend(row, x, row[x - 1], alpha, keep, delta)
+            for x in range(width - 2, -1, -1):
+                _blend(row, x, row[x + 1], alpha, keep, delta)
+        for y in range(1, height):  # whole rows at a time: the inner loop runs along memory
+            row, above = disparity[y], disparity[y - 1]
+            for x in range(width):
+                _blend(row, x, above[x], alpha, keep, delta)
+        for y in range(height - 2, -1, -1):
+            row, below = disparity[y], disparity[y + 1]
+            for x in range(width):
+                _blend(row, x, below[x], alpha, keep, delta)
+
+
+def _blend(
+    row: np.ndarray, x: int, neighbour: np.float32, alpha: np.float32, keep: np.float32, delta: np.float32
+) -> None:
+    """`row[x]` pulled towards its smoothed neighbour when both are valid and on one surface (NaN compares
+    false, so an invalid pixel neither moves nor moves another)."""
+    value = row[x]
+    if abs(value - neighbour) <= delta:
+        row[x] = alpha * value + keep * neighbour
+
+
+@functools.cache
+def _kernels() -> dict[str, Callable[..., Any]]:
+    """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
+    import numba
+
+    module = globals()  # the kernel calls the compiled helper
+    module["_blend"] = numba.njit(cache=True, inline="always")(_blend)
+    return {"smooth": numba.njit(cache=True, nogil=True)(_smooth)}
