@@ -254,15 +254,14 @@ def glare(args: argparse.Namespace) -> None:
 
 
 def glare_picture(path: Path, off: StereoResult, on: np.ndarray, area: np.ndarray) -> None:
-    """Rectified left with the glare in red | disparity without | with invalidate_saturated."""
+    """Rectified left with the glare in red | disparity without | with invalidate_saturated, at half size."""
     marked = cv2.cvtColor(off.left_rect, cv2.COLOR_GRAY2BGR)
     marked[area] = (0.5 * marked[area] + (0, 0, 127)).astype(np.uint8)
     top = float(np.nanmax(off.disparity))
-    panels = [
-        label(marked, "rectified left, glare in red"),
-        label(colorize_disparity(off.disparity, top), "invalidate_saturated off"),
-        label(colorize_disparity(on, top), "invalidate_saturated on"),
-    ]
+    images = (marked, colorize_disparity(off.disparity, top), colorize_disparity(on, top))
+    names = ("rectified left, glare in red", "invalidate_saturated off", "invalidate_saturated on")
+    half = (marked.shape[1] // 2, marked.shape[0] // 2)
+    panels = [label(cv2.resize(i, half, interpolation=cv2.INTER_AREA), n) for i, n in zip(images, names, strict=True)]
     write_picture(path, np.hstack(panels))
 
 

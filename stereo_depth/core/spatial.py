@@ -31,9 +31,19 @@ class SpatialSettings:
 
 
 def spatial_filter(disparity: np.ndarray, settings: SpatialSettings) -> np.ndarray:
-    """The smoothed disparity (float32, NaN invalid, as given), a new array."""
-    out = np.ascontiguousarray(disparity, np.float32).copy()
-    _kernels()["smooth"](out, np.float32(settings.alpha), np.float32(settings.delta), settings.iterations)
+    """The smoothed disparity (float32, NaN invalid, as given), a new array.
+
+    Each iteration runs the row passes as column passes of the transposed image: a column pass blends a
+    whole row with the one before it, an inner loop along memory without a dependency from pixel to pixel,
+    which runs as vectors (the row passes proper would chain every pixel to the one before it)."""
+    smooth = _kernels()["columns"]
+    alpha, delta = np.float32(settings.alpha), np.float32(settings.delta)
+    out = np.ascontiguousarray(disparity, np.float32)
+    for _ in range(settings.iterations):
+        transposed = np.ascontiguousarray(out.T)  # a copy: the input stays as it is
+        smooth(transposed, alpha, delta)
+        out = np.ascontiguousarray(transposed.T)
+        smooth(out, alpha, delta)
     return out
 
 
@@ -42,35 +52,22 @@ def compile_kernels() -> None:
     spatial_filter(np.ones((2, 2), np.float32), SpatialSettings())
 
 
-def _smooth(disparity: np.ndarray, alpha: np.float32, delta: np.float32, iterations: int) -> None:
-    """In place: `iterations` times the four recursive passes."""
+def _smooth_columns(disparity: np.ndarray, alpha: np.float32, delta: np.float32) -> None:
+    """In place: down the columns, then back up, each pixel blended with its already smoothed neighbour
+    where both are valid and within `delta` (NaN compares false: an invalid pixel neither moves nor moves
+    another)."""
     height, width = disparity.shape
     keep = np.float32(1.0) - alpha
-    for _ in range(iterations):
-        for y in range(height):
-            row = disparity[y]
-            for x in range(1, width):
-                _blend(row, x, row[x - 1], alpha, keep, delta)
-            for x in range(width - 2, -1, -1):
-                _blend(row, x, row[x + 1], alpha, keep, delta)
-        for y in range(1, height):  # whole rows at a time: the inner loop runs along memory
-            row, above = disparity[y], disparity[y - 1]
-            for x in range(width):
-                _blend(row, x, above[x], alpha, keep, delta)
-        for y in range(height - 2, -1, -1):
-            row, below = disparity[y], disparity[y + 1]
-            for x in range(width):
-                _blend(row, x, below[x], alpha, keep, delta)
-
-
-def _blend(
-    row: np.ndarray, x: int, neighbour: np.float32, alpha: np.float32, keep: np.float32, delta: np.float32
-) -> None:
-    """`row[x]` pulled towards its smoothed neighbour when both are valid and on one surface (NaN compares
-    false, so an invalid pixel neither moves nor moves another)."""
-    value = row[x]
-    if abs(value - neighbour) <= delta:
-        row[x] = alpha * value + keep * neighbour
+    for y in range(1, height):
+        row, above = disparity[y], disparity[y - 1]
+        for x in range(width):
+            value, neighbour = row[x], above[x]
+            row[x] = alpha * value + keep * neighbour if abs(value - neighbour) <= delta else value
+    for y in range(height - 2, -1, -1):
+        row, below = disparity[y], disparity[y + 1]
+        for x in range(width):
+            value, neighbour = row[x], below[x]
+            row[x] = alpha * value + keep * neighbour if abs(value - neighbour) <= delta else value
 
 
 @functools.cache
@@ -78,6 +75,4 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
     import numba
 
-    module = globals()  # the kernel calls the compiled helper
-    module["_blend"] = numba.njit(cache=True, inline="always")(_blend)
-    return {"smooth": numba.njit(cache=True, nogil=True)(_smooth)}
+    return {"columns": numba.njit(cache=True, nogil=True)(_smooth_columns)}
