@@ -184,7 +184,7 @@ def option_costs(profile: str, disparity_range: int, repeat: int) -> None:
         right_glare = rectified_glare(right, result.right_rect, camera, "right", shape, params.saturation_level)
         invalidate_glare(MatchResult(result.disparity.copy()), glare, right_glare)
         glared = time.perf_counter()
-        spatial_filter(result.disparity, params.spatial)
+        spatial_filter(result.disparity, params.spatial, result.left_rect)
         runs["invalidate_saturated"].append((glared - start) * 1000.0)
         runs["spatial_filter"].append((time.perf_counter() - glared) * 1000.0)
     med = {name: statistics.median(times_ms[2:]) for name, times_ms in runs.items()}

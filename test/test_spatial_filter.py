@@ -1,10 +1,11 @@
-"""The spatial filter (spatial_filter): smooths the disparity within a surface, never across a depth edge,
-and never changes which pixels have a disparity."""
+"""The spatial filter (spatial_filter): replaces wrong matches by their surface's value, smooths the disparity
+within a surface, never across a depth edge, and never changes which pixels have a disparity."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from stereo_depth.core.metrics import accuracy
@@ -15,6 +16,7 @@ from stereo_depth.formats.scenes import load_scene
 
 SCENES = Path(__file__).resolve().parent / "data" / "scenes"
 SETTINGS = SpatialSettings()
+FLAT = np.zeros((120, 160), np.uint8)  # an image without texture: the disparity alone guides the filter
 
 
 def noisy_plane(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -> tuple[np.ndarray, np.ndarray]:
@@ -27,10 +29,10 @@ def noisy_plane(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -
 def test_noise_on_a_plane_is_smoothed_without_bending_the_plane() -> None:
     plane, noisy = noisy_plane(np.random.default_rng(1))
     error_before = np.abs(noisy - plane)
-    error_after = np.abs(spatial_filter(noisy, SETTINGS) - plane)
+    error_after = np.abs(spatial_filter(noisy, SETTINGS, FLAT) - plane)
     assert error_after.mean() < 0.5 * error_before.mean()
     inner = np.s_[8:-8, 8:-8]  # away from the borders, where the passes start
-    assert abs(float((spatial_filter(noisy, SETTINGS) - plane)[inner].mean())) < 0.02  # no slant-induced bias
+    assert abs(float((spatial_filter(noisy, SETTINGS, FLAT) - plane)[inner].mean())) < 0.02  # no slant-induced bias
 
 
 def test_a_depth_edge_is_never_crossed() -> None:
@@ -40,11 +42,36 @@ def test_a_depth_edge_is_never_crossed() -> None:
     disparity[30:70, 30:70] = 40.0
     disparity[48:52, 10:90] = 40.0  # a thin pole
     foreground = disparity > 30
+    grey = np.where(foreground, 150, 100).astype(np.uint8)  # the image shows the object
     disparity += rng.normal(0.0, 0.3, disparity.shape).astype(np.float32)
-    out = spatial_filter(disparity, SETTINGS)
+    out = spatial_filter(disparity, SETTINGS, grey)
     for side in (foreground, ~foreground):
         assert out[side].min() >= disparity[side].min() and out[side].max() <= disparity[side].max()
     assert np.abs(out[foreground] - 40.0).max() < 1.5 and np.abs(out[~foreground] - 20.0).max() < 1.5
+
+
+def test_a_wrong_match_on_a_surface_takes_the_surface_value() -> None:
+    """Isolated wrong matches (one pixel, a 2x2 patch) on a slanted plane, far beyond the smoothing's
+    depth-edge step: the outlier pass puts them back on the plane."""
+    plane, _ = noisy_plane(np.random.default_rng(3))
+    disparity = plane.copy()
+    disparity[40, 50] += 12.0
+    disparity[80:82, 100:102] -= 9.0
+    out = spatial_filter(disparity, SETTINGS, FLAT)
+    assert abs(out[40, 50] - plane[40, 50]) < 0.5
+    assert np.abs(out[80:82, 100:102] - plane[80:82, 100:102]).max() < 0.5
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(disparity))
+
+
+def test_a_thin_real_structure_survives() -> None:
+    """A pole 3 px wide, nearer than the wall behind it, that the image shows: the outlier pass keeps it."""
+    disparity = np.full((120, 160), 20.0, np.float32)
+    disparity[:, 70:73] = 35.0
+    grey = np.full(disparity.shape, 90, np.uint8)
+    grey[:, 70:73] = 160
+    out = spatial_filter(disparity, SETTINGS, grey)
+    np.testing.assert_allclose(out[:, 70:73], 35.0, atol=0.5)
+    np.testing.assert_allclose(out[:, 60:68], 20.0, atol=0.5)
 
 
 def test_holes_stay_holes_and_no_hole_spreads() -> None:
@@ -53,7 +80,7 @@ def test_holes_stay_holes_and_no_hole_spreads() -> None:
     params = make_params("default", {"disparity_range": scene.disparity_range()})
     disparity = StereoPipeline(params).match(scene.left, scene.right, None, rectified=True).disparity
     assert 0.02 < np.isnan(disparity).mean() < 0.5
-    out = spatial_filter(disparity, SETTINGS)
+    out = spatial_filter(disparity, SETTINGS, cv2.cvtColor(scene.left, cv2.COLOR_BGR2GRAY))
     np.testing.assert_array_equal(np.isnan(out), np.isnan(disparity))
 
 

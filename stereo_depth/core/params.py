@@ -126,8 +126,9 @@ class StereoParams:
     )
     spatial_filter: bool = option(
         False,
-        "Smooth the disparity within each surface (edge-preserving domain transform, recursive, as "
-        "RealSense's spatial filter): never across a depth edge, never into or out of a hole",
+        "Replace wrong matches by their surface's value (image-guided median), then smooth the disparity "
+        "within each surface (edge-preserving domain transform, recursive, as RealSense's spatial filter): "
+        "never across a depth edge, never into or out of a hole",
     )
     spatial_alpha: float = option(
         0.5, "Spatial filter: a pixel's own weight against its smoothed neighbour's (1 = no smoothing)", 0.05, 1.0
@@ -136,6 +137,14 @@ class StereoParams:
         2.0, "Spatial filter: a step between neighbours larger than this many px is a depth edge", 0.0, 64.0
     )
     spatial_iterations: int = option(2, "Spatial filter: passes over the image (a wider reach)", 1, 5, 1)
+    spatial_outlier_radius: int = option(
+        3,
+        "Spatial filter: first a wrong match takes the median of the valid disparities within this many px, "
+        "weighted by likeness in the image, so that a thin structure the image shows stays (0 = off)",
+        0,
+        5,
+        1,
+    )
 
     @property
     def temporal(self) -> TemporalSettings:
@@ -149,7 +158,9 @@ class StereoParams:
 
     @property
     def spatial(self) -> SpatialSettings:
-        return SpatialSettings(self.spatial_alpha, self.spatial_delta, self.spatial_iterations)
+        return SpatialSettings(
+            self.spatial_alpha, self.spatial_delta, self.spatial_iterations, self.spatial_outlier_radius
+        )
 
     def validate(self) -> StereoParams:
         """Refuse values that OpenCV would reject or silently change, with the reason."""

@@ -202,7 +202,7 @@ class StereoPipeline:
                 match.disparity, grey_small, radius=params.hole_fill_radius, keep_invalid=match.excluded
             )
         if params.spatial_filter:
-            match.disparity = spatial_filter(match.disparity, params.spatial)
+            match.disparity = spatial_filter(match.disparity, params.spatial, grey_small)
         if factor > 1 and params.downsample_output == "processed":
             camera = self._shrunk(camera, factor) if camera is not None else None
             grey_l, grey_r = grey_small, grey_r_small

@@ -1,14 +1,20 @@
-"""Spatial filter: edge-preserving smoothing of the disparity within each surface.
+"""Spatial filter: wrong matches replaced by their surface's value, then edge-preserving smoothing of the
+disparity within each surface.
 
-The recursive form of the domain transform (Gastal and Oliveira, "Domain Transform for Edge-Aware Image
-and Video Processing", SIGGRAPH 2011), guided by the disparity itself, with the step weight RealSense's
-spatial filter uses: along each row, left to right and back, then along each column, down and back up,
-a pixel's value becomes `alpha` of its own plus `1 - alpha` of its smoothed neighbour's, where the two
-lie within `delta` px of each other (one surface); a larger step is a depth edge, and the smoothing
-starts anew behind it. Invalid pixels (NaN) are skipped and break the chain: nothing is filled, nothing
-invalid spreads, the set of valid pixels never changes. `iterations` repeats the four passes (a wider
-reach). Deterministic (no fastmath), so live and offline give the same bytes. numba-compiled on first
-use, then cached.
+First an outlier pass, run twice: a valid pixel whose image-guided weighted median (over the valid
+disparities of a (2 * `outlier_radius` + 1)^2 window, each weighted by how close its grey value is to the
+pixel's own, at least half the window valid) lies more than 1 px from it takes that median. An isolated
+wrong match, or a small patch of them, lies on a surface the window mostly sees and takes its value; a
+real structure at least `outlier_radius` px wide keeps its own, and the grey weights keep a depth edge
+where the image has one. Then the recursive form of the domain transform (Gastal and Oliveira, "Domain
+Transform for Edge-Aware Image and Video Processing", SIGGRAPH 2011), guided by the disparity itself,
+with the step weight RealSense's spatial filter uses: along each row, left to right and back, then along
+each column, down and back up, a pixel's value becomes `alpha` of its own plus `1 - alpha` of its smoothed
+neighbour's, where the two lie within `delta` px of each other (one surface); a larger step is a depth
+edge, and the smoothing starts anew behind it. `iterations` repeats the four passes (a wider reach).
+Invalid pixels (NaN) are skipped by both: nothing is filled, nothing invalid spreads, the set of valid
+pixels never changes. Deterministic (no fastmath), so live and offline give the same bytes.
+numba-compiled on first use, then cached.
 """
 
 from __future__ import annotations
@@ -18,7 +24,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
+
+prange = range  # numba.prange once the kernels are compiled (_kernels)
+
+OUTLIER_PASSES = 2
+OUTLIER_STEP = np.float32(1.0)  # px: a pixel this far from its guided median is a wrong match
+GREY_SIGMA = 10.0  # grey levels: a neighbour this much darker or brighter weighs 1/e
 
 
 @dataclass(frozen=True)
@@ -28,28 +41,113 @@ class SpatialSettings:
     alpha: float = 0.5  # a pixel's own weight: 1 leaves the disparity as it is
     delta: float = 2.0  # px: a larger step between neighbours is a depth edge
     iterations: int = 2
+    outlier_radius: int = 3  # px: the outlier pass's window reaches this far (0: no outlier pass)
 
 
-def spatial_filter(disparity: np.ndarray, settings: SpatialSettings) -> np.ndarray:
-    """The smoothed disparity (float32, NaN invalid, as given), a new array.
+def spatial_filter(disparity: np.ndarray, settings: SpatialSettings, grey: np.ndarray) -> np.ndarray:
+    """The filtered disparity (float32, NaN invalid, as given), a new array; `grey` is the rectified left
+    image (uint8) of the same size, which guides the outlier pass.
 
     Each iteration runs the row passes as column passes of the transposed image: a column pass blends a
     whole row with the one before it, an inner loop along memory without a dependency from pixel to pixel,
     which runs as vectors (the row passes proper would chain every pixel to the one before it)."""
-    smooth = _kernels()["columns"]
+    kernels = _kernels()
     alpha, delta = np.float32(settings.alpha), np.float32(settings.delta)
     out = np.ascontiguousarray(disparity, np.float32)
+    if settings.outlier_radius > 0:
+        weights = np.exp(-np.arange(256, dtype=np.float32) / np.float32(GREY_SIGMA)).astype(np.float32)
+        guide = np.ascontiguousarray(grey, np.uint8)
+        radius = settings.outlier_radius
+        window = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+        valid = np.isfinite(out)
+        highest = cv2.dilate(np.where(valid, out, np.float32(-np.inf)), window)  # of each window's valid values
+        lowest = cv2.erode(np.where(valid, out, np.float32(np.inf)), window)
+        looked_at = valid.view(np.uint8)
+        for _ in range(OUTLIER_PASSES):
+            out, replaced = kernels["outliers"](out, looked_at, highest, lowest, guide, radius, weights, delta)
+            looked_at = cv2.dilate(replaced, window)  # no other pixel's window has changed
     for _ in range(settings.iterations):
         transposed = np.ascontiguousarray(out.T)  # a copy: the input stays as it is
-        smooth(transposed, alpha, delta)
+        kernels["columns"](transposed, alpha, delta)
         out = np.ascontiguousarray(transposed.T)
-        smooth(out, alpha, delta)
+        kernels["columns"](out, alpha, delta)
     return out
 
 
 def compile_kernels() -> None:
-    """Compile the kernel (or load it from numba's cache) now, so that no frame waits for it."""
-    spatial_filter(np.ones((2, 2), np.float32), SpatialSettings())
+    """Compile the kernels (or load them from numba's cache) now, so that no frame waits for them."""
+    spatial_filter(np.ones((2, 2), np.float32), SpatialSettings(), np.zeros((2, 2), np.uint8))
+
+
+def _replace_outliers(
+    disparity: np.ndarray,
+    looked_at: np.ndarray,
+    highest: np.ndarray,
+    lowest: np.ndarray,
+    grey: np.ndarray,
+    radius: int,
+    weights: np.ndarray,
+    delta: np.float32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A new array and the pixels it replaced (uint8, 1 = replaced).
+
+    A pixel of `looked_at` (uint8) that lies more than `delta` from its window's `highest` or `lowest` valid
+    value (where a depth edge or a wrong match may lie; elsewhere the domain transform does the work)
+    takes the grey-weighted median of the window's valid values, if at least half the window is valid and
+    the median lies more than OUTLIER_STEP from it. The weight of the values below and above the pixel's
+    own tells first, without a sort, whether the median lies that far."""
+    height, width = disparity.shape
+    out = disparity.copy()
+    replaced = np.zeros((height, width), np.uint8)
+    size = (2 * radius + 1) ** 2
+    enough = (size + 1) // 2
+    for y in prange(height):
+        values = np.empty(size, np.float32)
+        value_weights = np.empty(size, np.float32)
+        for x in range(width):
+            value = disparity[y, x]  # NaN compares false: a hole stays a hole
+            if not (looked_at[y, x] and (highest[y, x] - value > delta or value - lowest[y, x] > delta)):
+                continue
+            centre = np.int32(grey[y, x])
+            low, high = value - OUTLIER_STEP, value + OUTLIER_STEP
+            top, bottom = max(y - radius, 0), min(y + radius + 1, height)
+            left, right = max(x - radius, 0), min(x + radius + 1, width)
+            count, total, below, above = 0, np.float32(0.0), np.float32(0.0), np.float32(0.0)
+            for yy in range(top, bottom):
+                for xx in range(left, right):
+                    # without branches, which would mispredict at every edge: an invalid neighbour weighs 0
+                    neighbour = disparity[yy, xx]
+                    valid = neighbour == neighbour
+                    weight = weights[abs(np.int32(grey[yy, xx]) - centre)] * np.float32(valid)
+                    count += np.int64(valid)
+                    total += weight
+                    below += weight * np.float32(neighbour < low)
+                    above += weight * np.float32(neighbour > high)
+            half = total * np.float32(0.5)
+            if count < enough or (below <= half and above <= half):
+                continue
+            count = 0  # the median lies that far: gather the window's valid values and their weights
+            for yy in range(top, bottom):
+                for xx in range(left, right):
+                    neighbour = disparity[yy, xx]
+                    if neighbour == neighbour:
+                        values[count] = neighbour
+                        value_weights[count] = weights[abs(np.int32(grey[yy, xx]) - centre)]
+                        count += 1
+            for i in range(1, count):  # insertion sort by value, in place: no allocation per pixel
+                held, held_weight, j = values[i], value_weights[i], i - 1
+                while j >= 0 and values[j] > held:
+                    values[j + 1], value_weights[j + 1] = values[j], value_weights[j]
+                    j -= 1
+                values[j + 1], value_weights[j + 1] = held, held_weight
+            running = np.float32(0.0)
+            for i in range(count):
+                running += value_weights[i]
+                if running >= half:
+                    out[y, x] = values[i]
+                    replaced[y, x] = 1
+                    break
+    return out, replaced
 
 
 def _smooth_columns(disparity: np.ndarray, alpha: np.float32, delta: np.float32) -> None:
@@ -75,4 +173,8 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
     import numba
 
-    return {"columns": numba.njit(cache=True, nogil=True)(_smooth_columns)}
+    globals()["prange"] = numba.prange
+    return {
+        "outliers": numba.njit(cache=True, nogil=True)(_replace_outliers),
+        "columns": numba.njit(cache=True, nogil=True)(_smooth_columns),
+    }
