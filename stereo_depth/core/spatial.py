@@ -1,20 +1,21 @@
 """Spatial filter: wrong matches replaced by their surface's value, then edge-preserving smoothing of the
 disparity within each surface.
 
-First an outlier pass, run twice: a valid pixel whose image-guided weighted median (over the valid
-disparities of a (2 * `outlier_radius` + 1)^2 window, each weighted by how close its grey value is to the
-pixel's own, at least half the window valid) lies more than 1 px from it takes that median. An isolated
-wrong match, or a small patch of them, lies on a surface the window mostly sees and takes its value; a
-real structure at least `outlier_radius` px wide keeps its own, and the grey weights keep a depth edge
-where the image has one. Then the recursive form of the domain transform (Gastal and Oliveira, "Domain
-Transform for Edge-Aware Image and Video Processing", SIGGRAPH 2011), guided by the disparity itself,
-with the step weight RealSense's spatial filter uses: along each row, left to right and back, then along
-each column, down and back up, a pixel's value becomes `alpha` of its own plus `1 - alpha` of its smoothed
-neighbour's, where the two lie within `delta` px of each other (one surface); a larger step is a depth
-edge, and the smoothing starts anew behind it. `iterations` repeats the four passes (a wider reach).
-Invalid pixels (NaN) are skipped by both: nothing is filled, nothing invalid spreads, the set of valid
-pixels never changes. Deterministic (no fastmath), so live and offline give the same bytes.
-numba-compiled on first use, then cached.
+First an outlier pass, run twice: a valid pixel with a valid neighbour more than `delta` away in its
+(2 * `outlier_radius` + 1)^2 window (a depth edge or a wrong match lies there; elsewhere the smoothing does
+the work) takes the median of the window's valid disparities, each weighted by how close its grey value is
+to the pixel's own, where at least half the window is valid and that median lies more than 1 px from it.
+An isolated wrong match, or a small patch of them, lies on a surface the window mostly sees and takes its
+value; a structure the image shows keeps its own, and the grey weights keep a depth edge where the image
+has one. The second run looks only at the windows the first changed. Then the recursive form of the domain
+transform (Gastal and Oliveira, "Domain Transform for Edge-Aware Image and Video Processing", SIGGRAPH
+2011), guided by the disparity itself, with the step weight RealSense's spatial filter uses: along each
+row, left to right and back, then along each column, down and back up, a pixel's value becomes `alpha` of
+its own plus `1 - alpha` of its smoothed neighbour's, where the two lie within `delta` px of each other
+(one surface); a larger step is a depth edge, and the smoothing starts anew behind it. `iterations` repeats
+the four passes (a wider reach). Invalid pixels (NaN) are skipped by both: nothing is filled, nothing
+invalid spreads, the set of valid pixels never changes. Deterministic (no fastmath), so live and offline
+give the same bytes. numba-compiled on first use, then cached.
 """
 
 from __future__ import annotations
@@ -26,8 +27,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-prange = range  # numba.prange once the kernels are compiled (_kernels)
 
 OUTLIER_PASSES = 2
 OUTLIER_STEP = np.float32(1.0)  # px: a pixel this far from its guided median is a wrong match
@@ -59,13 +58,11 @@ def spatial_filter(disparity: np.ndarray, settings: SpatialSettings, grey: np.nd
         guide = np.ascontiguousarray(grey, np.uint8)
         radius = settings.outlier_radius
         window = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-        valid = np.isfinite(out)
-        highest = cv2.dilate(np.where(valid, out, np.float32(-np.inf)), window)  # of each window's valid values
-        lowest = cv2.erode(np.where(valid, out, np.float32(np.inf)), window)
-        looked_at = valid.view(np.uint8)
+        highest = cv2.dilate(np.fmax(out, np.float32(-np.inf)), window)  # of each window's valid values
+        lowest = cv2.erode(np.fmin(out, np.float32(np.inf)), window)  # (fmax and fmin pass NaN over)
+        looked_at = np.ones(out.shape, np.uint8)
         for _ in range(OUTLIER_PASSES):
-            out, replaced = kernels["outliers"](out, looked_at, highest, lowest, guide, radius, weights, delta)
-            looked_at = cv2.dilate(replaced, window)  # no other pixel's window has changed
+            out, looked_at = kernels["outliers"](out, looked_at, highest, lowest, guide, radius, weights, delta)
     for _ in range(settings.iterations):
         transposed = np.ascontiguousarray(out.T)  # a copy: the input stays as it is
         kernels["columns"](transposed, alpha, delta)
@@ -89,7 +86,8 @@ def _replace_outliers(
     weights: np.ndarray,
     delta: np.float32,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A new array and the pixels it replaced (uint8, 1 = replaced).
+    """A new array, and the pixels whose window holds a replaced one (uint8), which the next pass looks at:
+    no other pixel's window has changed.
 
     A pixel of `looked_at` (uint8) that lies more than `delta` from its window's `highest` or `lowest` valid
     value (where a depth edge or a wrong match may lie; elsewhere the domain transform does the work)
@@ -98,10 +96,10 @@ def _replace_outliers(
     own tells first, without a sort, whether the median lies that far."""
     height, width = disparity.shape
     out = disparity.copy()
-    replaced = np.zeros((height, width), np.uint8)
+    touched = np.zeros((height, width), np.uint8)
     size = (2 * radius + 1) ** 2
     enough = (size + 1) // 2
-    for y in prange(height):
+    for y in range(height):
         values = np.empty(size, np.float32)
         value_weights = np.empty(size, np.float32)
         for x in range(width):
@@ -119,7 +117,7 @@ def _replace_outliers(
                     neighbour = disparity[yy, xx]
                     valid = neighbour == neighbour
                     weight = weights[abs(np.int32(grey[yy, xx]) - centre)] * np.float32(valid)
-                    count += np.int64(valid)
+                    count += int(valid)
                     total += weight
                     below += weight * np.float32(neighbour < low)
                     above += weight * np.float32(neighbour > high)
@@ -145,9 +143,9 @@ def _replace_outliers(
                 running += value_weights[i]
                 if running >= half:
                     out[y, x] = values[i]
-                    replaced[y, x] = 1
+                    touched[top:bottom, left:right] = 1
                     break
-    return out, replaced
+    return out, touched
 
 
 def _smooth_columns(disparity: np.ndarray, alpha: np.float32, delta: np.float32) -> None:
@@ -173,7 +171,6 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     """numba-compiled kernels, built (or loaded from numba's cache) on first use."""
     import numba
 
-    globals()["prange"] = numba.prange
     return {
         "outliers": numba.njit(cache=True, nogil=True)(_replace_outliers),
         "columns": numba.njit(cache=True, nogil=True)(_smooth_columns),
