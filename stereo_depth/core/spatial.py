@@ -1,13 +1,13 @@
 """Spatial filter: wrong matches replaced by their surface's value, then edge-preserving smoothing of the
 disparity within each surface.
 
-First an outlier pass, run twice: a valid pixel with a valid neighbour more than `delta` away in its
-(2 * `outlier_radius` + 1)^2 window (a depth edge or a wrong match lies there; elsewhere the smoothing does
-the work) takes the median of the window's valid disparities, each weighted by how close its grey value is
-to the pixel's own, where at least half the window is valid and that median lies more than 1 px from it.
-An isolated wrong match, or a small patch of them, lies on a surface the window mostly sees and takes its
-value; a structure the image shows keeps its own, and the grey weights keep a depth edge where the image
-has one. The second run looks only at the windows the first changed. Then the recursive form of the domain
+First an outlier pass, run twice: a valid pixel on a step (one of its 8 neighbours more than `delta`
+away: a depth edge or the rim of a wrong match; elsewhere the smoothing does the work) takes the median of
+the valid disparities of its (2 * `outlier_radius` + 1)^2 window, each weighted by how close its grey value
+is to the pixel's own, where at least half the window is valid and that median lies more than 1 px from
+it. An isolated wrong match, or a small patch of them, lies on a surface the window mostly sees and takes
+its value; a structure the image shows keeps its own, and the grey weights keep a depth edge where the
+image has one. The second run looks only at the windows the first changed. Then the recursive form of the domain
 transform (Gastal and Oliveira, "Domain Transform for Edge-Aware Image and Video Processing", SIGGRAPH
 2011), guided by the disparity itself, with the step weight RealSense's spatial filter uses: along each
 row, left to right and back, then along each column, down and back up, a pixel's value becomes `alpha` of
@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 
 OUTLIER_PASSES = 2
@@ -57,12 +56,9 @@ def spatial_filter(disparity: np.ndarray, settings: SpatialSettings, grey: np.nd
         weights = np.exp(-np.arange(256, dtype=np.float32) / np.float32(GREY_SIGMA)).astype(np.float32)
         guide = np.ascontiguousarray(grey, np.uint8)
         radius = settings.outlier_radius
-        window = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-        highest = cv2.dilate(np.fmax(out, np.float32(-np.inf)), window)  # of each window's valid values
-        lowest = cv2.erode(np.fmin(out, np.float32(np.inf)), window)  # (fmax and fmin pass NaN over)
-        looked_at = np.ones(out.shape, np.uint8)
+        looked_at = kernels["steps"](out, delta)
         for _ in range(OUTLIER_PASSES):
-            out, looked_at = kernels["outliers"](out, looked_at, highest, lowest, guide, radius, weights, delta)
+            out, looked_at = kernels["outliers"](out, looked_at, guide, radius, weights, delta)
     for _ in range(settings.iterations):
         transposed = np.ascontiguousarray(out.T)  # a copy: the input stays as it is
         kernels["columns"](transposed, alpha, delta)
@@ -76,24 +72,31 @@ def compile_kernels() -> None:
     spatial_filter(np.ones((2, 2), np.float32), SpatialSettings(), np.zeros((2, 2), np.uint8))
 
 
+def _on_a_step(disparity: np.ndarray, delta: np.float32) -> np.ndarray:
+    """The valid pixels (uint8, 1) with one of their 8 neighbours more than `delta` away: a depth edge or the
+    rim of a wrong match. Whole rows at a time, which run as vectors (NaN compares false: never a step)."""
+    height, width = disparity.shape
+    steps = np.zeros((height, width), np.uint8)
+    for y in range(height):
+        row, marks = disparity[y], steps[y]
+        for other_y in range(max(y - 1, 0), min(y + 2, height)):
+            other = disparity[other_y]
+            for shift in range(-1, 2):
+                for x in range(max(-shift, 0), min(width - shift, width)):
+                    marks[x] |= np.uint8(abs(row[x] - other[x + shift]) > delta)
+    return steps
+
+
 def _replace_outliers(
-    disparity: np.ndarray,
-    looked_at: np.ndarray,
-    highest: np.ndarray,
-    lowest: np.ndarray,
-    grey: np.ndarray,
-    radius: int,
-    weights: np.ndarray,
-    delta: np.float32,
+    disparity: np.ndarray, looked_at: np.ndarray, grey: np.ndarray, radius: int, weights: np.ndarray, delta: np.float32
 ) -> tuple[np.ndarray, np.ndarray]:
     """A new array, and the pixels whose window holds a replaced one (uint8), which the next pass looks at:
     no other pixel's window has changed.
 
-    A pixel of `looked_at` (uint8) that lies more than `delta` from its window's `highest` or `lowest` valid
-    value (where a depth edge or a wrong match may lie; elsewhere the domain transform does the work)
-    takes the grey-weighted median of the window's valid values, if at least half the window is valid and
-    the median lies more than OUTLIER_STEP from it. The weight of the values below and above the pixel's
-    own tells first, without a sort, whether the median lies that far."""
+    A pixel of `looked_at` (uint8) on a step (as in _on_a_step) takes the grey-weighted median of the
+    window's valid values, if at least half the window is valid and the median lies more than OUTLIER_STEP
+    from it. The weight of the values below and above the pixel's own tells first, without a sort, whether
+    the median lies that far."""
     height, width = disparity.shape
     out = disparity.copy()
     touched = np.zeros((height, width), np.uint8)
@@ -103,8 +106,14 @@ def _replace_outliers(
         values = np.empty(size, np.float32)
         value_weights = np.empty(size, np.float32)
         for x in range(width):
-            value = disparity[y, x]  # NaN compares false: a hole stays a hole
-            if not (looked_at[y, x] and (highest[y, x] - value > delta or value - lowest[y, x] > delta)):
+            if not looked_at[y, x]:
+                continue
+            value = disparity[y, x]
+            step = False  # NaN compares false: a hole is never on a step, and stays a hole
+            for yy in range(max(y - 1, 0), min(y + 2, height)):
+                for xx in range(max(x - 1, 0), min(x + 2, width)):
+                    step |= abs(disparity[yy, xx] - value) > delta
+            if not step:
                 continue
             centre = np.int32(grey[y, x])
             low, high = value - OUTLIER_STEP, value + OUTLIER_STEP
@@ -124,11 +133,15 @@ def _replace_outliers(
             half = total * np.float32(0.5)
             if count < enough or (below <= half and above <= half):
                 continue
-            count = 0  # the median lies that far: gather the window's valid values and their weights
+            # the median lies among the values more than OUTLIER_STEP below (or above): sort those alone,
+            # from the weight of all the values before them
+            from_below = below > half
+            running = np.float32(0.0) if from_below else total - above
+            count = 0
             for yy in range(top, bottom):
                 for xx in range(left, right):
                     neighbour = disparity[yy, xx]
-                    if neighbour == neighbour:
+                    if (neighbour < low) if from_below else (neighbour > high):
                         values[count] = neighbour
                         value_weights[count] = weights[abs(np.int32(grey[yy, xx]) - centre)]
                         count += 1
@@ -138,7 +151,6 @@ def _replace_outliers(
                     values[j + 1], value_weights[j + 1] = values[j], value_weights[j]
                     j -= 1
                 values[j + 1], value_weights[j + 1] = held, held_weight
-            running = np.float32(0.0)
             for i in range(count):
                 running += value_weights[i]
                 if running >= half:
@@ -172,6 +184,7 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     import numba
 
     return {
+        "steps": numba.njit(cache=True, nogil=True)(_on_a_step),
         "outliers": numba.njit(cache=True, nogil=True)(_replace_outliers),
         "columns": numba.njit(cache=True, nogil=True)(_smooth_columns),
     }
