@@ -9,6 +9,9 @@ baseline does what a hand-written OpenCV script would: remap x2, the matcher, re
 process, interleaved (profiles too, frame by frame), and the table gives medians and three ratios: the
 pipeline alone / bare, everything the node does per frame (decode + pipeline + encode) / bare, and the
 match stage / the first profile's match stage (`--profiles default quality`: quality's time in SGBM's).
+A second table gives the cost of the glare invalidation (invalidate_saturated: both images' glare, the
+right one's seen through the disparity) and of the spatial filter at 640x480 against the first profile's
+match stage, interleaved with it (the EuRoC pair holds a bright window, so the glare stage does all its work).
 
     .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc] [--markdown]
     .venv/bin/python bench/pipeline_stages.py --registration [--repeat 20] [--profiles default]
@@ -32,9 +35,11 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.matching import Matcher, create_matcher
+from stereo_depth.core.matching import Matcher, MatchResult, create_matcher
 from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
+from stereo_depth.core.saturation import invalidate_glare, rectified_glare
+from stereo_depth.core.spatial import spatial_filter
 from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.kalibr import pose_of
 from stereo_depth.frames import Geometry, disparity_message
@@ -225,6 +230,33 @@ def main() -> None:
             else:  # downsampling / hole filling: no bare OpenCV call does the same work
                 row += f"{'-':>8s}{'-':>10s}{'-':>10s}"
             print(row + f"{med['match'] / first:10.2f}", flush=True)
+    option_costs(args.profiles[0], args.disparity_range, args.repeat)
+
+
+def option_costs(profile: str, disparity_range: int, repeat: int) -> None:
+    """The glare invalidation's and the spatial filter's time per 640x480 frame against the match stage."""
+    left, right, camera = load_pair(640, 480)
+    params = make_params(profile, {"disparity_range": disparity_range, "invalidate_saturated": False})
+    pipeline = StereoPipeline(params)
+    runs: dict[str, list[float]] = {"match": [], "invalidate_saturated": [], "spatial_filter": []}
+    for _ in range(repeat + 2):
+        result = pipeline.match(left, right, camera)
+        runs["match"].append(result.timings_ms["match"])
+        start = time.perf_counter()
+        shape = result.left_rect.shape
+        glare = rectified_glare(left, result.left_rect, camera, "left", shape, params.saturation_level)
+        right_glare = rectified_glare(right, result.right_rect, camera, "right", shape, params.saturation_level)
+        invalidate_glare(MatchResult(result.disparity.copy()), glare, right_glare)
+        glared = time.perf_counter()
+        spatial_filter(result.disparity, params.spatial, result.left_rect)
+        runs["invalidate_saturated"].append((glared - start) * 1000.0)
+        runs["spatial_filter"].append((time.perf_counter() - glared) * 1000.0)
+    med = {name: statistics.median(times_ms[2:]) for name, times_ms in runs.items()}
+    glare_share = float(glare.mean()) if glare is not None else 0.0
+    print(f"\nprocessing options at 640x480, `{profile}` (glare: {glare_share:.3f} of the left image):")
+    print(table_header(("stage", "ms per frame", "vs match")))
+    for name, ms in med.items():
+        print(table_row((name, f"{ms:.2f}", times(ms / med["match"]))))
 
 
 if __name__ == "__main__":

@@ -84,8 +84,10 @@ class CloudJob:
         offset_adjusted: bool = False,
         with_geometry: bool = False,
         too_near: np.ndarray | None = None,
+        glare: np.ndarray | None = None,
     ) -> None:
-        self._stream, self.frame, self._camera, self._too_near = stream, frame, camera, too_near
+        self._stream, self.frame, self._camera = stream, frame, camera
+        self._too_near, self._glare = too_near, glare
         self._disparity, self._image, self._output = disparity, image, output
         self.wanted, self._offset_adjusted, self._with_geometry = frozenset(wanted), offset_adjusted, with_geometry
 
@@ -97,7 +99,7 @@ class CloudJob:
             geometry = Geometry(depth, camera, stream.pipeline.rays_for(camera), self._image, camera)
         else:
             geometry = disparity_geometry(
-                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near
+                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near, self._glare
             )
         depth_ms = (time.perf_counter() - start) * 1000.0
         start = time.perf_counter()
@@ -204,6 +206,7 @@ class FrameStream:
                     due,
                     with_geometry=with_geometry,
                     too_near=result.too_near,
+                    glare=result.glare,
                 )
         changed = self._calibration_changed(frame.camera)
         return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms)
