@@ -89,7 +89,7 @@ def test_glare_seen_through_the_right_image_is_invalid_too() -> None:
     right_glare = rectified_glare(right, None, camera, "right", left.shape, 0)
     assert right_glare is not None and off.glare is not None
     seen = seen_in_right(off.disparity, right_glare) & ~off.glare
-    assert seen.sum() > 500
+    assert seen.sum() > 300  # the window frame seen through the right glare
     assert not np.isfinite(on.disparity[seen]).any()
     untouched = ~seen & ~off.glare
     np.testing.assert_array_equal(on.disparity[untouched], off.disparity[untouched])
