@@ -107,6 +107,13 @@ class StereoParams:
         0.0,
         1.0,
     )
+    temporal_presence: float = option(
+        0.5,
+        "Temporal filter: share of the last 16 frames a pixel must be valid in to be output (a wrong match "
+        "in a place that is mostly a hole, even one that comes back a few frames in a row, is not)",
+        0.0,
+        1.0,
+    )
 
     @property
     def temporal(self) -> TemporalSettings:
@@ -116,6 +123,7 @@ class StereoParams:
             self.temporal_persistence,
             self.temporal_history,
             self.temporal_motion_reset,
+            self.temporal_presence,
         )
 
     def validate(self) -> StereoParams:
