@@ -93,6 +93,14 @@ class OutputOptions:
         0.1,
         1e4,
     )
+    # too near for the disparity range
+    near_points: str = option(
+        "invalid",
+        "Pixels too near for disparity_range (near_detection) in points2: invalid (no point) or range_limit "
+        "(one point each along its ray at the nearest depth the range can see: a costmap marks an obstacle "
+        "at least that near); mask_image and min_depth still apply, depth and points2_clearing never have them",
+        choices=("invalid", "range_limit"),
+    )
     compressed_depth_format: str = option(
         "png",
         "depth/compressedDepth codec: png or rvl (image_transport's compressedDepth format); rvl sends a "
@@ -166,7 +174,9 @@ class NodeOptions:
         "Publish points2_clearing: a point along the ray of each pixel matched beyond max_depth or at the "
         "smallest disparity, for costmaps to clear free space with (stereo_node)",
     )
-    publish_confidence: bool = option(True, "Publish confidence (32FC1, 0..1) when the matcher gives one (census_sgm)")
+    publish_confidence: bool = option(
+        True, "Publish confidence (32FC1, 0..1: how likely each disparity is right; 0 where invalid)"
+    )
     calibration_check: bool = option(True, "Check now and then that rectified rows still agree (report in diagnostics)")
     calibration_check_every_n_frames: int = option(
         30, "Run the calibration check on one frame in this many", 1, 100000, 1

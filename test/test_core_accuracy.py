@@ -58,12 +58,13 @@ def test_profile_accuracy_on_real_scene(profile: str, scene: str) -> None:
 def test_quality_profile_trades_density_for_accuracy_by_confidence_and_fills_every_hole(scene: str) -> None:
     """Through StereoPipeline as the node and `process` run it: a higher confidence_threshold keeps
     fewer, better pixels (measured bad-2 of estimated 0.024/0.021/0.008 at 0.5, density 0.75-0.80);
-    fill_holes estimates every pixel and, favouring the background, lowers bad-2 overall."""
+    fill_holes estimates every pixel but those too near for the range (0.1-0.6 % of the pixels) and, favouring
+    the background, lowers bad-2 overall."""
     plain = run_profile("quality", scene)
     confident = run_profile("quality", scene, confidence_threshold=0.5)
     assert confident.bad2_est < min(plain.bad2_est, 0.03) and confident.density > 0.7, (plain, confident)
     filled = run_profile("quality", scene, fill_holes=True)
-    assert filled.density == 1.0 and filled.bad2 < min(plain.bad2, MAX_BAD2_FILLED[scene]), (plain, filled)
+    assert filled.density > 0.99 and filled.bad2 < min(plain.bad2, MAX_BAD2_FILLED[scene]), (plain, filled)
 
 
 @pytest.mark.parametrize("scene", ["artl", "cones", "tsukuba"])

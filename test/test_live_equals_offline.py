@@ -36,7 +36,10 @@ LIVE_ONLY = ("matching_threads", "max_waiting_frames")  # how the node runs, not
 # name: (stereo_node -p values, the outputs compared); `process` gets the same values with --set
 VARIANTS = {
     "quality": ({"profile": "quality"}, ("disparity", "depth", "points2", "confidence", "left/image_rect")),
-    "fast_two_threads": ({"profile": "fast", "matching_threads": "2"}, ("disparity", "depth", "left/image_rect")),
+    "fast_two_threads": (
+        {"profile": "fast", "matching_threads": "2"},
+        ("disparity", "depth", "confidence", "left/image_rect"),
+    ),
     "cloud_options": (CLOUD, ("disparity", "depth", "points2")),
 }
 

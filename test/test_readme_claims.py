@@ -261,14 +261,16 @@ def row_background_fill(disparity: np.ndarray) -> np.ndarray:
 
 
 def test_fill_holes_and_hole_fill_radius(node: ClaimsNode, artl: Pair) -> None:
-    holes = disparity_from_msg(node.message("disparity", node.frame(artl)))
+    """Every hole filled (near_detection off: the pixels it finds too near stay holes)."""
     filled = {}
     try:
+        node.set(near_detection=False)
+        holes = disparity_from_msg(node.message("disparity", node.frame(artl)))
         for radius in (0, 3):
             node.set(fill_holes=True, hole_fill_radius=radius)
             filled[radius] = disparity_from_msg(node.message("disparity", node.frame(artl)))
     finally:
-        node.set(fill_holes=False, hole_fill_radius=make_params().hole_fill_radius)
+        node.set(fill_holes=False, hole_fill_radius=make_params().hole_fill_radius, near_detection=True)
     known = np.isfinite(holes)
     assert 0.05 < 1 - known.mean() < 0.5
     for radius, disparity in filled.items():

@@ -25,6 +25,7 @@ class MatchResult:
     disparity: np.ndarray
     confidence: np.ndarray | None = None
     excluded: np.ndarray | None = None  # bool: invalidated by a detector; no filter may refill these
+    too_near: np.ndarray | None = None  # bool: nearer than the disparity range can see (core/too_near.py)
 
 
 class Matcher(Protocol):

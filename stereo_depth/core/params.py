@@ -29,7 +29,7 @@ class StereoParams:
     matcher: str = option(
         "sgbm",
         "Matching core by name: bm (OpenCV block matching), sgbm (OpenCV semi-global), "
-        "census_sgm (our census + 6-path semi-global core with confidence)",
+        "census_sgm (our census + 6-path semi-global core)",
         choices=MATCHER_NAMES,
     )
     prefilter_size: int = option(9, "BM normalization window size in pixels (odd)", 5, 255, 2)
@@ -67,7 +67,19 @@ class StereoParams:
         choices=(6, 8, 5),
     )
     confidence_threshold: float = option(
-        0.0, "Invalidate pixels whose match confidence is below this (cores with confidence)", 0.0, 1.0
+        0.0,
+        "Invalidate pixels whose match confidence is below this (every matcher; one scale: a threshold keeps "
+        "about the same share of pixels whichever matcher runs)",
+        0.0,
+        1.0,
+    )
+    # too near for the disparity range
+    near_detection: bool = option(
+        True,
+        "Invalidate the pixels nearer than disparity_range can see (true disparity beyond it), which a "
+        "matcher would put farther away: found by a coarse search over twice the range at 1/4 resolution "
+        "and by the cost still falling at the range's top; they stay out of disparity, depth, points2 and "
+        "points2_clearing, and fill_holes leaves them (near_points puts them in points2)",
     )
     fill_holes: bool = option(False, "Fill invalid pixels from their neighbours for a dense depth image")
     hole_fill_radius: int = option(
@@ -237,6 +249,7 @@ _STEREO_IMAGE_PROC: dict[str, Any] = {
     "P1": 200.0,
     "P2": 400.0,
     "sgbm_mode": 0,
+    "near_detection": False,  # stereo_image_proc outputs too-near pixels as whatever the matcher gave
 }
 
 # The dataclass defaults are the recommended profile (semi-global, 3-way, small window, LR check).

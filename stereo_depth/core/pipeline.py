@@ -21,6 +21,7 @@ from stereo_depth.core.block_matching import use_our_bm
 from stereo_depth.core.camera import CameraInfo, StereoCamera
 from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
+from stereo_depth.core.match_checks import MatchChecks
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
 from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.params import StereoParams, make_params
@@ -41,6 +42,7 @@ class StereoResult:
     depth: np.ndarray | None  # float32 metres, NaN invalid
     points: np.ndarray | None  # (H, W, 3) float32, NaN invalid
     timings_ms: dict[str, float] = field(default_factory=dict)
+    too_near: np.ndarray | None = None  # bool: nearer than the range can see (None: detection off)
 
 
 def to_grey8(image: np.ndarray, scale: float) -> np.ndarray:
@@ -148,7 +150,7 @@ class StereoPipeline:
         The live node publishes the disparity at this point and leaves `add_geometry` to a second
         thread, which may run it while this one matches the next frame.
         """
-        params, matcher = self._matcher()
+        params, matcher, checks = self._matcher()
         t0 = time.perf_counter()
         _check_pair(left, right)
         scale = _grey_scale(left, right)
@@ -173,6 +175,7 @@ class StereoPipeline:
         grey_small, grey_r_small = (_writable(image) for image in _shrink(grey_l, grey_r, factor))
         _check_matchable(grey_small, _scaled(params, factor))
         match = matcher.compute(grey_small, grey_r_small)
+        checks.apply(match, grey_small, grey_r_small)  # confidence, too-near pixels
         t2 = time.perf_counter()
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
@@ -188,14 +191,17 @@ class StereoPipeline:
             _enlarge(match, grey_l.shape, factor)
         t3 = time.perf_counter()
         timings = {"rectify": (t1 - t0) * 1000.0, "match": (t2 - t1) * 1000.0, "filter": (t3 - t2) * 1000.0}
-        return StereoResult(camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings)
+        result = StereoResult(camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings)
+        result.too_near = match.too_near
+        return result
 
-    def _matcher(self) -> tuple[StereoParams, Matcher]:
-        """The current parameters, with this thread's matcher for them."""
+    def _matcher(self) -> tuple[StereoParams, Matcher, MatchChecks]:
+        """The current parameters, with this thread's matcher for them and what follows it."""
         params, local = self._params, self._local
         if getattr(local, "params", None) is not params:
-            local.params, local.matcher = params, create_matcher(_scaled(params, params.downsample))
-        return local.params, local.matcher
+            scaled = _scaled(params, params.downsample)
+            local.params, local.matcher, local.checks = params, create_matcher(scaled), MatchChecks(scaled)
+        return local.params, local.matcher, local.checks
 
     def add_geometry(self, result: StereoResult, *, want_points: bool = True) -> None:
         """Depth (and the organized points when `want_points`) of a `match` result, when it has a camera.
@@ -278,6 +284,14 @@ def output_params(params: StereoParams) -> StereoParams:
     return params
 
 
+def nearest_disparity(params: StereoParams) -> float:
+    """The largest disparity the matcher searches, in the pixels of the disparity output: where the
+    nearest depth it can see lies."""
+    scaled = _scaled(params, params.downsample)
+    step = 1 if params.downsample_output == "processed" else params.downsample
+    return float((scaled.min_disparity + scaled.disparity_range - 1) * step)
+
+
 def _shrink_color(color: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return cv2.resize(color, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
 
@@ -316,3 +330,5 @@ def _enlarge(match: MatchResult, shape: tuple[int, ...], factor: int) -> None:
         match.confidence = cv2.resize(match.confidence, size, interpolation=cv2.INTER_NEAREST)
     if match.excluded is not None:
         match.excluded = cv2.resize(match.excluded.view(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    if match.too_near is not None:
+        match.too_near = cv2.resize(match.too_near.view(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0

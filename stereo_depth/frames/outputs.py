@@ -15,7 +15,13 @@ import numpy as np
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import Rays, disparity_to_depth
 from stereo_depth.core.params import StereoParams
-from stereo_depth.core.pipeline import StereoPipeline, StereoResult, output_params, rectified_output
+from stereo_depth.core.pipeline import (
+    StereoPipeline,
+    StereoResult,
+    nearest_disparity,
+    output_params,
+    rectified_output,
+)
 from stereo_depth.core.temporal import TemporalFilter
 from stereo_depth.errors import ImageError
 from stereo_depth.frames.decode import StereoFrame
@@ -233,26 +239,56 @@ class Geometry(NamedTuple):
     image: np.ndarray  # rectified left, BGR or grey: the cloud's colour
     raw_camera: StereoCamera  # the input calibration, at the input size (the mask is drawn in its raw image)
     at_min_disparity: np.ndarray | None = None  # matched at the smallest disparity searched (points2_clearing)
+    too_near: np.ndarray | None = None  # nearer than the disparity range can see (near_points)
+    nearest_depth: float = 0.0  # metres: the nearest depth the disparity range can see
 
 
 def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: StereoResult) -> Geometry:
     """Depth of a `match` result, its disparity as matched."""
     assert result.camera is not None
     image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image)
+    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image, result.too_near)
 
 
 def disparity_geometry(
-    pipeline: StereoPipeline, frame: StereoFrame, camera: StereoCamera, disparity: np.ndarray, image: np.ndarray
+    pipeline: StereoPipeline,
+    frame: StereoFrame,
+    camera: StereoCamera,
+    disparity: np.ndarray,
+    image: np.ndarray,
+    too_near: np.ndarray | None = None,
 ) -> Geometry:
     """Depth of a frame's disparity (not offset-adjusted, at the size of `camera`); the pixels matched at
-    the smallest disparity searched are marked for points2_clearing."""
+    the smallest disparity searched are marked for points2_clearing, those too near for the range for
+    `near_points`."""
     depth = disparity_to_depth(disparity, camera)
     params = pipeline.params
     step = 1 if params.downsample_output == "processed" else params.downsample  # one matcher step, output px
     with np.errstate(invalid="ignore"):  # NaN: not matched
         saturated = disparity < np.float32(output_params(params).min_disparity + step)
-    return Geometry(depth, camera, pipeline.rays_for(camera), image, frame.camera, saturated)
+    nearest = nearest_matchable_depth(params, camera)
+    rays = pipeline.rays_for(camera)
+    return Geometry(depth, camera, rays, image, frame.camera, saturated, too_near, nearest)
+
+
+def nearest_matchable_depth(params: StereoParams, camera: StereoCamera) -> float:
+    """Metres: the depth of the largest disparity searched (NaN where the calibration gives none)."""
+    top = np.array([[nearest_disparity(params)]], np.float32)
+    return float(disparity_to_depth(top, camera)[0, 0]) if camera.no_depth_reason is None else float("nan")
+
+
+def range_limited_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:
+    """points2's depth with `near_points: range_limit`: each too-near pixel at the nearest depth the range
+    can see, unless the mask or min_depth holds it back (the geometry's depth is already limited)."""
+    depth = geometry.depth
+    near = geometry.too_near
+    if near is None or not near.any() or not options.min_depth <= geometry.nearest_depth:
+        return depth
+    if options.mask_image:
+        near = near & masks.get(options.mask_image, geometry.raw_camera, depth.shape)
+    depth = depth.copy()
+    depth[near] = np.float32(geometry.nearest_depth)
+    return depth
 
 
 def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:
@@ -338,6 +374,10 @@ def geometry_outputs(
     clearing = clearing_depth(geometry, options, state.masks) if "points2_clearing" in wanted else None
     geometry = geometry._replace(depth=limited_depth(geometry, options, state.masks))
     cloud = decimated(geometry, options.points_decimation)
+    if "points2" in wanted and options.near_points == "range_limit":
+        cloud = decimated(
+            geometry._replace(depth=range_limited_depth(geometry, options, state.masks)), options.points_decimation
+        )
     messages: dict[str, Any] = {}
     if {"depth", "depth/compressedDepth"} & set(wanted):
         pixels = depth_pixels(geometry.depth, options.depth_encoding)

@@ -79,8 +79,9 @@ class CloudJob:
         *,
         offset_adjusted: bool = False,
         with_geometry: bool = False,
+        too_near: np.ndarray | None = None,
     ) -> None:
-        self._stream, self.frame, self._camera = stream, frame, camera
+        self._stream, self.frame, self._camera, self._too_near = stream, frame, camera, too_near
         self._disparity, self._image, self._output = disparity, image, output
         self.wanted, self._offset_adjusted, self._with_geometry = frozenset(wanted), offset_adjusted, with_geometry
 
@@ -91,7 +92,9 @@ class CloudJob:
             depth = disparity_to_depth(self._disparity, camera, offset_adjusted=True)
             geometry = Geometry(depth, camera, stream.pipeline.rays_for(camera), self._image, camera)
         else:
-            geometry = disparity_geometry(stream.pipeline, self.frame, camera, self._disparity, self._image)
+            geometry = disparity_geometry(
+                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near
+            )
         depth_ms = (time.perf_counter() - start) * 1000.0
         start = time.perf_counter()
         messages = geometry_outputs(stream.types, self.frame.header, geometry, self._output, self.wanted, stream.state)
@@ -180,7 +183,17 @@ class FrameStream:
             if due or with_geometry:
                 assert result.camera is not None  # match_frame passes the frame's camera
                 image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-                cloud = CloudJob(self, frame, result.camera, disparity, image, output, due, with_geometry=with_geometry)
+                cloud = CloudJob(
+                    self,
+                    frame,
+                    result.camera,
+                    disparity,
+                    image,
+                    output,
+                    due,
+                    with_geometry=with_geometry,
+                    too_near=result.too_near,
+                )
         changed = self._calibration_changed(frame.camera)
         return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms)
 

@@ -24,6 +24,7 @@ SILENT_AFTER_S = 3.0  # an input quiet this long while the others arrive is repo
 RECENT_FRAMES = 30  # frames averaged for stage times and latency
 LOSS_HELP = "see docs/dds.md#large-messages"  # why DDS loses large inputs, and the fix
 BOTTLENECK_HELP = "see docs/dds.md#where-frames-go"
+TOO_NEAR_WARN_SHARE = 0.05  # recent frames' mean share of too-near pixels that a warning names
 
 
 @dataclass
@@ -93,6 +94,8 @@ class NodeDiagnostics:
         self.stale = 0  # messages whose stamp repeated or went back a little (dropped)
         self.time_jumps = 0  # stamps went back by more than the synchronizer's jump: pairing restarted
         self.calibrations = 0  # calibrations loaded (rectification maps built); grows only on a change
+        self._too_near: deque[float] = deque(maxlen=RECENT_FRAMES)  # share of each frame's pixels
+        self._nearest_depth = float("nan")  # metres: the nearest depth the disparity range can see
 
     def input_received(self, topic: str, stamp_ns: int) -> None:
         now = time.monotonic()
@@ -157,6 +160,21 @@ class NodeDiagnostics:
             for stage, ms in stage_ms.items():
                 self._stage_ms.setdefault(stage, deque(maxlen=RECENT_FRAMES)).append(ms)
             self._latency_s.append(latency_s)
+
+    def too_near(self, share: float, nearest_depth: float) -> str:
+        """One frame's share of pixels too near for the disparity range; returns a warning to log (throttled
+        by the caller) while the recent frames' mean share stays above TOO_NEAR_WARN_SHARE, else ''."""
+        with self._lock:
+            self._too_near.append(share)
+            self._nearest_depth = nearest_depth
+            recent = sum(self._too_near) / len(self._too_near)
+        if len(self._too_near) < RECENT_FRAMES or recent <= TOO_NEAR_WARN_SHARE:
+            return ""
+        return (
+            f"{100 * recent:.0f} % of the pixels are nearer than {nearest_depth:.2f} m, the nearest depth "
+            "disparity_range can see: they are left out of depth and points2 (near_points: range_limit puts "
+            "them in points2 at that depth); a larger disparity_range, or downsample, sees nearer"
+        )
 
     def add_dropped(self, count: int) -> None:
         with self._lock:
@@ -244,6 +262,10 @@ class NodeDiagnostics:
             values.append(("latency from stamp (s)", f"{sum(self._latency_s) / len(self._latency_s):.3f}"))
         for output, ages in sorted(self._age_s.items()):
             values.append((f"{output} age at publish (ms)", f"{1000.0 * sum(ages) / len(ages):.1f}"))
+        if self._too_near:
+            share = sum(self._too_near) / len(self._too_near)
+            values.append(("too near for disparity_range (share of pixels)", f"{share:.3f}"))
+            values.append(("nearest matchable depth (m)", f"{self._nearest_depth:.3f}"))
         values.append(("frames processed", str(self.processed)))
         values.append(("dropped frames", str(self.dropped)))
         values.append(("dropped clouds (depth, points2)", str(self.dropped_clouds)))

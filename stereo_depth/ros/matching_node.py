@@ -23,9 +23,10 @@ import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 
 from stereo_depth.core.calibration_check import check_rectified_pair
-from stereo_depth.core.pipeline import warm_up_kernels
+from stereo_depth.core.pipeline import StereoResult, warm_up_kernels
 from stereo_depth.core.threads import use_threads
 from stereo_depth.frames import GEOMETRY_OUTPUTS, CloudJob
+from stereo_depth.frames.outputs import nearest_matchable_depth
 from stereo_depth.messages import RVL_FALLBACK_NOTE, compressed_depth_codec
 from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros import signals
@@ -118,6 +119,7 @@ class MatchingNode(StreamNode):
                 self.problems.warn_once(mismatch)
             if out.calibration_changed:
                 self.note_calibration(out.frame.camera)
+            self._note_too_near(out.result, settings)
             self.publish_outputs(out.images, stages, job.received_s)
             if self._checker is not None:
                 self._maybe_check_calibration(out.frame.stamp_ns, out.result.left_rect, out.result.right_rect, settings)
@@ -128,6 +130,16 @@ class MatchingNode(StreamNode):
             task = CloudTask(out.cloud, job.stamp_ns, job.received_s, {**out.stage_ms, **stages})
             self._cloud_stage.submit(task, job.received_s)
         return None
+
+    def _note_too_near(self, result: StereoResult, settings: Settings) -> None:
+        """Diagnostics' share of too-near pixels and nearest matchable depth; a throttled warning while many
+        pixels stay too near."""
+        if result.too_near is None or result.camera is None or settings.stereo is None:
+            return
+        nearest = nearest_matchable_depth(settings.stereo, result.camera)
+        warning = self.diagnostics.too_near(float(np.count_nonzero(result.too_near)) / result.too_near.size, nearest)
+        if warning:
+            self.problems.warn(warning, ("too near for disparity_range",))
 
     @contextmanager
     def outputs_in_order(self, sequence: int) -> Iterator[bool]:
