@@ -7,6 +7,9 @@ Three kinds of sequence, each through the profile's pipeline and then `TemporalF
   read/shot noise and a per-frame gain jitter per camera, as an auto-exposed camera shows);
 - moving: a textured patch (cut from another real scene) at a known disparity in front of a real
   scene, moving sideways, then gone: how long its trail stays, and how much of it is seen while it moves;
+- pitching: the rig turning about its baseline (plus and minus 2 degrees, 1.2 s period, 30 Hz), an exact
+  homography of both rectified images of a real scene and of its ground truth, with fresh noise; no
+  odometry is given, so the filter has to see the motion itself (`--pitching N`: the first N scenes);
 - recorded: real static recordings (`--data DIR`: each folder in it a recording a real camera made
   standing still; README.md says how to build them): real sensor noise, auto-exposure and the errors
   that come back frame after frame; no ground truth.
@@ -20,7 +23,7 @@ scored frames; counted per frame), jumps (pixels valid in two consecutive frames
 by more than 1 px; per frame) and density. A VGA row times the filter against the match on 640x480
 frames of a scene, in the same run. Metrics skip the first `--warm-up` frames.
 
-.venv/bin/python bench/temporal.py [--scenes DIR ...] [--data DIR] [--frames 30] [--seed 1]
+.venv/bin/python bench/temporal.py [--scenes DIR ...] [--data DIR] [--pitching 5] [--frames 30] [--seed 1]
     [--set temporal_delta=1.0 ...]
 """
 
@@ -56,6 +59,9 @@ SPORADIC_SHARE = 0.25  # a pixel valid in fewer than this share of the frames is
 JUMP_PX = 1.0  # a disparity change between consecutive frames larger than this is a jump
 VGA = (640, 480)
 VGA_FRAMES = 24
+PITCH_DEGREES = 2.0  # the pitching rig: plus and minus this, about the baseline
+PITCH_PERIOD_S = 1.2
+PITCH_FRAMES = 72  # two periods at 30 Hz
 
 
 # ------------------------------------------------------------------------------------------ sequences
@@ -105,6 +111,35 @@ def moving_sequence(
         if scene.mask is not None:
             gt = np.where(scene.mask | (gt == d_obj), gt, np.nan)
         yield noisy(left, rng), noisy(right, rng), gt.astype(np.float32)
+
+
+def pitching_sequence(scene: Scene, frames: int, seed: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The rig pitching about its baseline (PITCH_DEGREES, PITCH_PERIOD_S, 30 Hz): a rotation about the
+    axis through both camera centres, so both rectified images move by the same homography H = K R K^-1
+    (K: focal length the image width, principal point the centre; any pinhole K is exact) and stay
+    rectified. The ground truth moves with them: a point's disparity scales by Z / Z' = 1 / (R^T K^-1 p)_z."""
+    rng = np.random.default_rng(seed)
+    assert scene.gt is not None
+    height, width = scene.gt.shape
+    f, cx, cy = float(width), (width - 1) / 2.0, (height - 1) / 2.0
+    k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    gt = np.where(scene.mask, scene.gt, np.nan) if scene.mask is not None else scene.gt
+    rows = (np.arange(height, dtype=np.float64)[:, None] - cy) / f
+    for index in range(frames):
+        angle = np.radians(PITCH_DEGREES) * np.sin(2.0 * np.pi * index * FRAME_NS * 1e-9 / PITCH_PERIOD_S)
+        c, s = np.cos(angle), np.sin(angle)
+        rotation = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        h = k @ rotation.T @ np.linalg.inv(k)
+        scaled = (gt / (c - s * rows)).astype(np.float32)  # the disparity each source pixel has after the turn
+        size = (width, height)
+        moved_gt = cv2.warpPerspective(
+            scaled, h, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")
+        )
+        left, right = (
+            cv2.warpPerspective(image, h, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            for image in (scene.left, scene.right)
+        )
+        yield noisy(left, rng), noisy(right, rng), moved_gt
 
 
 # ------------------------------------------------------------------------------------------ metrics
@@ -191,7 +226,7 @@ def timed_run(
         disparity = result.disparity
         if settings is not None:
             start = time.perf_counter()  # wall: the kernel runs on numba's threads
-            disparity = temporal.apply(disparity, result.confidence, k * FRAME_NS, 0, settings)
+            disparity = temporal.apply(disparity, result.confidence, k * FRAME_NS, 0, settings, view=result.left_rect)
             times.append((time.perf_counter() - start) * 1000.0)
         if k >= warm_up:
             outs.append(disparity)
@@ -258,6 +293,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--warm-up", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1, help="the static sequences' noise (a second seed: the spread)")
+    parser.add_argument(
+        "--pitching", type=int, default=5, metavar="N", help="the pitching rig on the first N scenes (0: none)"
+    )
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="temporal_* options")
     args = parse_bench_arguments(parser)
     values = dict(item.split("=", 1) for item in args.set)
@@ -303,23 +341,40 @@ def main() -> None:
                 f"moving: {np.mean(on_patch):.3f} of its pixels"
             )
         report(f"moving {scene.name}", profile, rows[0], rows[1], args.markdown)
+    pitching: dict[str, list[tuple[Row, Row]]] = {}
+    for profile in args.profiles:
+        for scene in scenes[: args.pitching]:
+            params = make_params(profile, {"disparity_range": scene.disparity_range()})
+            rows = []
+            for chosen in (None, settings):
+                frames = pitching_sequence(scene, PITCH_FRAMES, args.seed)
+                outs, gts, ms = run(StereoPipeline(params), frames, chosen, None, args.warm_up)
+                rows.append(metrics(outs, gts, ms))
+            report(f"pitching {scene.name}", profile, rows[0], rows[1], args.markdown)
+            pitching.setdefault(profile, []).append((rows[0], rows[1]))
     for profile in args.profiles:
         vga_cost(profile, settings, scenes[0], args.markdown)
     recorded = recordings(args.data, args.profiles, settings, args.warm_up, args.markdown) if args.data else []
     print()
-    for profile, pairs in summary.items():
-        worst_flicker = max(on.flicker / max(off.flicker, 1e-9) for off, on in pairs)
-        worst_ghosts = max(on.ghosts / max(off.ghosts, 1e-9) for off, on in pairs)
-        worst_bad2 = max(on.bad2_est - off.bad2_est for off, on in pairs)
-        worst_density = min(on.density - off.density for off, on in pairs)
-        print(
-            f"static, {profile}, worst scene of {len(pairs)}: flicker on/off {worst_flicker:.3f}, ghosts on/off "
-            f"{worst_ghosts:.3f}, bad-2 of estimated on-off {worst_bad2:+.4f}, density on-off {worst_density:+.4f}"
-        )
+    for kind, worst in (("static", summary), ("pitching (no odometry)", pitching)):
+        for profile, pairs in worst.items():
+            print(worst_of(kind, profile, pairs))
     for note in notes:
         print(note)
     for line in recorded:
         print(line)
+
+
+def worst_of(kind: str, profile: str, pairs: list[tuple[Row, Row]]) -> str:
+    """The summary line of one kind of sequence: each figure's worst scene, filter on against off."""
+    worst_flicker = max(on.flicker / max(off.flicker, 1e-9) for off, on in pairs)
+    worst_ghosts = max(on.ghosts / max(off.ghosts, 1e-9) for off, on in pairs)
+    worst_bad2 = max(on.bad2_est - off.bad2_est for off, on in pairs)
+    worst_density = min(on.density - off.density for off, on in pairs)
+    return (
+        f"{kind}, {profile}, worst scene of {len(pairs)}: flicker on/off {worst_flicker:.3f}, ghosts on/off "
+        f"{worst_ghosts:.3f}, bad-2 of estimated on-off {worst_bad2:+.4f}, density on-off {worst_density:+.4f}"
+    )
 
 
 def vga_cost(profile: str, settings: TemporalSettings, scene: Scene, markdown: bool) -> None:

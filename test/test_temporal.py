@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -168,6 +169,49 @@ def test_motion_reset_restarts_every_pixel_when_all_change_at_once() -> None:
     part[:1] = 40.0  # a quarter of the pixels changed: below the share, nothing restarts
     kept = feed(TemporalFilter(), [*before, part], motion_reset=0.5)[-1]
     np.testing.assert_array_equal(kept[1:], 20.0)
+
+
+def test_while_the_view_moves_frames_pass_unfiltered_and_the_history_is_forgotten() -> None:
+    """Without odometry the filter stands aside when the camera turns: the view shifts by 3 px a frame,
+    so the history no longer lies under the same pixels; the raw disparity passes (no worse than no
+    filter), and once the view holds still the filter takes over again as soon as persistence allows."""
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (5, 5), 0)  # a VGA view
+    rows = np.arange(120, dtype=np.float32)[:, None]
+    temporal = TemporalFilter()
+    outs, raws = [], []
+    for k in range(20):
+        shift = 3 * k if k < 12 else 33  # turning, then still
+        raw = (20.0 + rows / 10.0 + shift / 10.0 + rng.normal(0.0, 0.3, (120, 160))).astype(np.float32)
+        view = np.roll(texture, shift, axis=0)
+        outs.append(temporal.apply(raw, None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=view))
+        raws.append(raw)
+    for k in range(1, 12):
+        np.testing.assert_array_equal(outs[k], raws[k])  # moving: the matcher's disparity as it is
+    for k in range(12, 10 + SETTINGS.persistence):  # (the last turn, frame 11, restarted the history)
+        np.testing.assert_array_equal(outs[k], raws[k])  # still again: unfiltered until the history is refilled
+    filtered = outs[-1]
+    assert not np.array_equal(filtered, raws[-1]) and np.isfinite(filtered).mean() > 0.9
+    assert np.std(filtered - filtered.mean()) < np.std(raws[-1] - raws[-1].mean())  # averaged again
+    still = TemporalFilter()
+    for k in range(8):
+        out = still.apply(frame(20.0), None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=texture)
+    np.testing.assert_array_equal(out, 20.0)  # a still view: filtered as without the test
+
+
+def test_an_object_crossing_a_still_view_does_not_make_the_filter_stand_aside() -> None:
+    """One part of the view moves 8 px a frame (a person walking by), the rest holds still: the camera
+    did not move, and the filter keeps filtering."""
+    rng = np.random.default_rng(4)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (5, 5), 0)
+    temporal = TemporalFilter()
+    for k in range(10):
+        view = texture.copy()
+        view[160:288, 213:341] = np.roll(texture[160:288, 213:341], 8 * k, axis=1)
+        raw = frame(20.0) + np.float32(0.1 * (k % 2))
+        out = temporal.apply(raw, None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=view)
+    assert not np.array_equal(out, raw)  # filtered: the average, not this frame's values
+    assert np.isfinite(out).all()
 
 
 def test_the_output_depends_on_the_last_frames_only() -> None:

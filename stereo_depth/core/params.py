@@ -126,6 +126,13 @@ class StereoParams:
         0.0,
         1.0,
     )
+    temporal_ego_motion: float = option(
+        0.5,
+        "Temporal filter: when the view shifts by more than this many px between frames (the camera turns or "
+        "moves), forget the history and pass frames through unfiltered until it is refilled (0 = off)",
+        0.0,
+        100.0,
+    )
 
     @property
     def temporal(self) -> TemporalSettings:
@@ -136,6 +143,7 @@ class StereoParams:
             self.temporal_history,
             self.temporal_motion_reset,
             self.temporal_presence,
+            self.temporal_ego_motion,
         )
 
     def validate(self) -> StereoParams:

@@ -36,6 +36,11 @@ Everything restarts (the history is emptied) when the stamp goes back (a looping
 driver), when more than `GAP_PERIODS` frame periods pass without a frame, when the calibration or the
 image size changes, and, with `motion_reset`, when more than that share of the pixels valid in both
 frames changed by more than `delta` since the previous frame (the camera jumped: everything changed).
+Given the frame's rectified left image, it also restarts when the view shifted by more than `ego_motion`
+px since the previous frame (the median over tiles of their phase correlation, so an object crossing a
+still view does not count): the camera turns or moves, and the history no longer lies under the same
+pixels. It then stands aside: frames pass unfiltered until `persistence` frames of a still view refill
+the history, so that without odometry the filter never makes a moving camera's depth worse.
 ROS-free; the kernels are numba-compiled on first use (census_sgm's dependency), then cached.
 """
 
@@ -48,6 +53,7 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 
 from stereo_depth.errors import ParameterError
@@ -56,6 +62,8 @@ MAX_HISTORY = 8  # frames: RealSense's "k of the last 8"
 LONG_RUN = 16  # frames the long-run rules look back over
 GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of the last intervals) restarts
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
+VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
+VIEW_TILES = 3  # in 3 x 3 tiles
 
 
 @dataclass(frozen=True)
@@ -68,6 +76,7 @@ class TemporalSettings:
     history: int = MAX_HISTORY
     motion_reset: float = 0.0  # share of changed pixels that restarts every pixel; 0: off
     presence: float = 0.5  # share of the last LONG_RUN frames a pixel must be valid in
+    ego_motion: float = 0.5  # px the view may shift between frames before the filter stands aside; 0: off
 
     def validate(self) -> TemporalSettings:
         if not 0.0 < self.alpha <= 1.0:
@@ -82,6 +91,9 @@ class TemporalSettings:
         if not 0.0 <= self.presence <= 1.0:
             msg = f"temporal_presence {self.presence} must be in [0, 1]"
             raise ParameterError(msg)
+        if self.ego_motion < 0.0:
+            msg = f"temporal_ego_motion {self.ego_motion} must be >= 0"
+            raise ParameterError(msg)
         return self
 
 
@@ -92,6 +104,31 @@ def compile_kernels() -> None:
         temporal = TemporalFilter()
         for stamp in (1, 2):
             temporal.apply(np.ones((2, 2), np.float32), confidence, stamp, None, TemporalSettings(motion_reset=0.5))
+
+
+def _view_shift(previous: np.ndarray, current: np.ndarray) -> float:
+    """How far the view moved, px at this size: the median over VIEW_TILES x VIEW_TILES tiles of each
+    tile's shift (phase correlation), so that an object moving across a still view does not count."""
+    height, width = _dft_size(current.shape[0] // VIEW_TILES), _dft_size(current.shape[1] // VIEW_TILES)
+    window = _hanning((height, width))
+    shifts = []
+    for row in range(VIEW_TILES):
+        for col in range(VIEW_TILES):
+            tile = np.s_[row * height : (row + 1) * height, col * width : (col + 1) * width]
+            (dx, dy), _ = cv2.phaseCorrelate(previous[tile].copy(), current[tile].copy(), window)  # it writes to them
+            shifts.append(np.hypot(dx, dy))
+    return float(np.median(shifts))
+
+
+def _dft_size(size: int) -> int:
+    """The largest power of two up to `size`: OpenCV's phase correlation reports a still view as shifted by
+    half a pixel at some other sizes (13-15, 25-27, 41-45 px, ...)."""
+    return 1 << max(0, size.bit_length() - 1)
+
+
+@functools.cache
+def _hanning(shape: tuple[int, int]) -> np.ndarray:
+    return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
 
 
 def lead_in_frames() -> int:
@@ -111,11 +148,14 @@ class TemporalFilter:
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
         self._calibration: Hashable = None
+        self._view: np.ndarray | None = None  # the last frame's view, small, for the ego-motion test
+        self._standing_aside = False  # the view moved: frames pass unfiltered until the history is refilled
 
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
-        self._values = self._weights = None
+        self._values = self._weights = self._view = None
         self._head, self._frames, self._calibration = -1, 0, None
+        self._standing_aside = False
         self._stamps.clear()
 
     def apply(
@@ -125,9 +165,13 @@ class TemporalFilter:
         stamp_ns: int,
         calibration: Hashable,
         settings: TemporalSettings,
+        *,
+        view: np.ndarray | None = None,
     ) -> np.ndarray:
-        """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed."""
+        """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed.
+        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test."""
         kernels = _kernels()
+        turned = self._view_moved(view, settings.ego_motion)
         pixels = disparity.size
         if (
             self._values is None
@@ -148,9 +192,10 @@ class TemporalFilter:
             np.float32(settings.delta),
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
-        if self._frames == 0 or moved or self._stamp_breaks(stamp_ns):
+        if self._frames == 0 or moved or turned or self._stamp_breaks(stamp_ns):
             self._values[np.arange(LONG_RUN) != self._head] = HOLE
             self._frames = 0
+        self._standing_aside = turned or self._standing_aside
         self._stamps.append(stamp_ns)
         self._calibration = calibration
         self._frames += 1
@@ -167,7 +212,25 @@ class TemporalFilter:
             out,
             _threads(),
         )
+        if self._standing_aside and self._frames < settings.persistence:
+            return disparity.astype(np.float32, copy=True)  # no worse than no filter while the view moves
+        self._standing_aside = False
         return out.reshape(disparity.shape)
+
+    def _view_moved(self, view: np.ndarray | None, limit: float) -> bool:
+        """Whether the view shifted by more than `limit` px since the last frame (the camera turned or
+        moved: the history no longer lies under the same pixels); remembers this frame's view."""
+        if view is None or limit <= 0.0:
+            self._view = None
+            return False
+        small = cv2.resize(
+            view, (view.shape[1] // VIEW_SCALE, view.shape[0] // VIEW_SCALE), interpolation=cv2.INTER_AREA
+        )
+        small = small.astype(np.float32)
+        previous, self._view = self._view, small
+        if previous is None or previous.shape != small.shape or self._frames == 0:
+            return False
+        return _view_shift(previous, small) * VIEW_SCALE > limit
 
     def _stamp_breaks(self, stamp_ns: int) -> bool:
         """The stamp went back, or more than GAP_PERIODS frame periods passed (the period: the shortest
