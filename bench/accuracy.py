@@ -1,13 +1,17 @@
-"""Accuracy on scenes with ground truth: the profiles side by side, what the confidence is worth, and what
-the left-right check (disp12_max_diff) keeps.
+"""Accuracy on scenes with ground truth: the profiles side by side, what the confidence is worth, what
+the left-right check (disp12_max_diff) keeps, what the spatial filter gains, and what glare invalidation
+removes from real recordings.
 
     .venv/bin/python bench/accuracy.py profiles SCENE_DIR... [--picture PATH] [--repeat 3] [--markdown]
     .venv/bin/python bench/accuracy.py confidence SCENE_DIR... [--profile quality] [--threshold 0.5]
     .venv/bin/python bench/accuracy.py left-right SCENE_DIR...
+    .venv/bin/python bench/accuracy.py registration --data DIR [--profile default]
     .venv/bin/python bench/accuracy.py sparsification SCENE_DIR...
     .venv/bin/python bench/accuracy.py too-near SCENE_DIR... [--range 64]
     .venv/bin/python bench/accuracy.py removed SCENE_DIR...
     .venv/bin/python bench/accuracy.py check-cost SCENE_DIR [--repeat 15]
+    .venv/bin/python bench/accuracy.py spatial SCENE_DIR... [--profiles default quality] [--picture PATH]
+    .venv/bin/python bench/accuracy.py glare RECORDING... [--profile default] [--pictures DIR]
 
 sparsification: per matcher (as its profile runs it, nothing filled), confidence threshold against the
 share of the valid pixels kept and bad-2 of those, pooled over the scenes; then the threshold that keeps
@@ -20,10 +24,24 @@ scene's own range, what near_detection removes from `default` and `quality`, and
 estimated pixels that follows. check-cost: at 640x480, the time of the confidence and of too-near
 detection against the match's, interleaved, per matcher.
 
+spatial: each profile without and with spatial_filter, means over the scenes: end-point error (of the
+estimated pixels), bad-2, bad-2 of the estimated, density; --picture draws the first scene's strongest
+depth edge (left | ground truth | without | with, enlarged). glare: per recording (a EuRoC folder of raw
+frames with cam0_sensor.yaml and cam1_sensor.yaml, or a rectified scene folder) the share of the left
+image that is glare, the share of it with a disparity without and with invalidate_saturated, and the
+density outside it; --pictures draws each recording's first frame (rectified left with the glare in red |
+disparity without | with).
+
 profiles: each profile's mean bad-2, bad-2 of the estimated pixels, density and time per scene (the best
 of --repeat), `default` first (the baseline of the ratio); --picture draws the first scene (left | ground
 truth | each profile). Bundled scenes: test/data/scenes; larger sets (Middlebury, KITTI) are passed as
 folders of scene folders, as `--data DIR` does for `make bench-docs`.
+
+registration: depth registered to a colour camera, checked against ground truth. Each scene under DIR
+with a right-view ground truth (disp_gt_right.png) is one frame through the frame stream, its right image
+given again as the colour camera (rgb/image_raw + rgb/camera_info) with rgb_in_left the baseline along x;
+the registered depth, as disparity, is compared with the right ground truth, on the right pixels the left
+camera sees, beside the left disparity on the left pixels the right camera sees.
 """
 
 from __future__ import annotations
@@ -37,19 +55,26 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.confidence import neighbourhood_confidence
 from stereo_depth.core.matching import create_matcher
 from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.metrics import Accuracy, accuracy, colorize_disparity, evaluation_mask, label
 from stereo_depth.core.params import PROFILES, StereoParams, make_params
-from stereo_depth.core.pipeline import StereoPipeline, to_grey8
+from stereo_depth.core.pipeline import StereoPipeline, StereoResult, to_grey8
+from stereo_depth.core.saturation import rectified_glare, seen_in_right
 from stereo_depth.core.too_near import TooNearDetector
-from stereo_depth.formats.scenes import Scene, load_scene
+from stereo_depth.formats.euroc import stereo_camera_infos
+from stereo_depth.formats.scenes import Scene, load_scene, read_ground_truth
 
 sys.path.insert(0, str(Path(__file__).parent))
 from lib.table import parse_bench_arguments, table_header, table_row, times
 
 DISP12_SETTINGS = (-1, 0, 1, 3)  # check off, stereo_image_proc's value, 1 and 3 px
+# the calibration given to scenes without one: disparity is what is compared, so any focal length and
+# baseline do
+FOCAL_PX, BASELINE_M = 1000.0, 0.1
+SEEN_PX = 1.0  # a pixel is seen by the other camera where both ground truths agree within this
 # each matcher as its profile runs it, without what changes its valid pixels after matching
 MATCHER_PROFILES: dict[str, tuple[str, dict[str, object]]] = {
     "bm": ("fast", {"fill_holes": False, "downsample": 1}),
@@ -154,6 +179,93 @@ def left_right(args: argparse.Namespace) -> None:
                 bad2 = accuracy(disparity, scene.gt, scene.mask).bad2_est * 100 if scene.gt is not None else np.nan
                 cells.append(f"{valid:.1f} % / {bad2:.1f} %")
             print(table_row((folder.name, matcher, *cells)), flush=True)
+
+
+def right_scenes(data: Path) -> list[Path]:
+    found = sorted(path.parent for path in data.rglob("disp_gt_right.png"))
+    if not found:
+        raise SystemExit(f"ERROR: no scene under {data} has a right ground truth (disp_gt_right.png)")
+    return found
+
+
+def seen_by_other(gt: np.ndarray, other: np.ndarray, sign: int) -> np.ndarray:
+    """The pixels of `gt`'s view that the other camera sees: the other view's ground truth at the pixel
+    this one's disparity leads to (x - d from left to right: sign -1) agrees within SEEN_PX."""
+    height, width = gt.shape
+    rows, columns = np.mgrid[0:height, 0:width]
+    valid = np.isfinite(gt)
+    target = np.rint(columns + sign * np.where(valid, gt, 0)).astype(np.int64)
+    inside = valid & (target >= 0) & (target < width)
+    seen = np.zeros(gt.shape, bool)
+    seen[inside] = np.abs(other[rows[inside], target[inside]] - gt[inside]) <= SEEN_PX
+    return seen
+
+
+def registered_disparity(scene: Scene, profile: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """(left disparity, the right camera's registered depth as disparity, registration ms) of one scene
+    through the frame stream, the right image given again as the colour camera."""
+    from stereo_depth.bag.types import rosbags_types
+    from stereo_depth.core.camera import CameraInfo
+    from stereo_depth.core.pose import Pose
+    from stereo_depth.frames import FrameStream
+    from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
+    from stereo_depth.options import OutputOptions
+    from stereo_depth.sync import StereoSet
+
+    types = rosbags_types()
+    height, width = scene.left.shape[:2]
+    k = np.array([[FOCAL_PX, 0.0, width / 2.0], [0.0, FOCAL_PX, height / 2.0], [0.0, 0.0, 1.0]])
+    infos = [
+        CameraInfo.from_values(width, height, k, np.zeros(5), np.eye(3), np.hstack([k, [[offset], [0.0], [0.0]]]))
+        for offset in (0.0, -FOCAL_PX * BASELINE_M, 0.0)  # left, right, the colour camera (the right one)
+    ]
+    header = make_header(types, 1, "left")
+    colour_header = make_header(types, 1, "colour")
+    left, right = (array_to_image(types, header, image) for image in (scene.left, scene.right))
+    inputs = StereoSet(
+        1, left, camera_info_to_msg(types, header, infos[0]), right, camera_info_to_msg(types, header, infos[1])
+    )
+    output = OutputOptions(rgb_in_left=Pose.from_list([BASELINE_M, 0, 0, 0, 0, 0, 1]))
+    stream = FrameStream(
+        types, make_params(profile, {"disparity_range": scene.disparity_range()}), output, rectified=True
+    )
+    stream.registration.add_colour(
+        array_to_image(types, colour_header, scene.right), camera_info_to_msg(types, colour_header, infos[2])
+    )
+    out = stream.match(inputs, ())
+    assert out.cloud is not None
+    jobs = out.cloud.run().registered
+    jobs[0].run(("depth_registered/image_rect",))  # loads the kernels
+    messages, ms = jobs[0].run(("depth_registered/image_rect",))
+    depth = np.frombuffer(bytes(messages["depth_registered/image_rect"].data), np.float32).reshape(height, width)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return out.disparity, (FOCAL_PX * BASELINE_M / depth).astype(np.float32), ms
+
+
+def registration(args: argparse.Namespace) -> None:
+    """Per scene: bad-2 over estimated pixels and density of the left disparity and of the registered depth."""
+    print(f"profile `{args.profile}`; left: on the left pixels the right camera sees; registered: on the right")
+    print("pixels the left camera sees (its depth as disparity, against the right ground truth):")
+    columns = ("scene", "left bad-2 of est.", "registered bad-2 of est.", "difference", "left density")
+    print(table_header((*columns, "registered density", "ratio", "registration ms")))
+    for folder in right_scenes(args.data):
+        scene = load_scene(folder)
+        right_gt = read_ground_truth(folder, {**scene.calib, "gt_file": "disp_gt_right.png"})
+        assert scene.gt is not None and right_gt is not None
+        left, registered, ms = registered_disparity(scene, args.profile)
+        mine = accuracy(left, scene.gt, seen_by_other(scene.gt, right_gt, -1))
+        theirs = accuracy(registered, right_gt, seen_by_other(right_gt, scene.gt, 1))
+        cells = (
+            scene.name,
+            f"{mine.bad2_est:.4f}",
+            f"{theirs.bad2_est:.4f}",
+            f"{theirs.bad2_est - mine.bad2_est:+.4f}",
+            f"{mine.density:.3f}",
+            f"{theirs.density:.3f}",
+            times(theirs.density / mine.density),
+            f"{ms:.1f}",
+        )
+        print(table_row(cells), flush=True)
 
 
 def pooled_confidence(scenes: list[Scene], profile: str, values: dict[str, object]) -> tuple[np.ndarray, np.ndarray]:
@@ -312,6 +424,131 @@ def check_cost(args: argparse.Namespace) -> None:
         print(table_row((name, f"{m:.2f}", f"{c:.2f}", times(c / m), f"{d:.2f}", times(d / m))))
 
 
+def spatial(args: argparse.Namespace) -> None:
+    scenes = scenes_with_truth(args.scenes)
+    print(f"{len(scenes)} scenes with ground truth, means over scenes, without | with spatial_filter:")
+    columns = ("profile", "end-point error", "ratio", "bad-2", "bad-2 of estimated", "density")
+    print(table_header(columns))
+    for profile in args.profiles:
+        rows = []
+        for scene in scenes:
+            assert scene.gt is not None
+            pair = [
+                StereoPipeline(make_params(profile, {"disparity_range": scene.disparity_range(), "spatial_filter": on}))
+                .match(scene.left, scene.right, None, rectified=True)
+                .disparity
+                for on in (False, True)
+            ]
+            if profile == args.profiles[0] and scene is scenes[0] and args.picture:
+                edge_picture(scene, pair[0], pair[1], args.picture)
+            rows.append([accuracy(disparity, scene.gt, scene.mask) for disparity in pair])
+        off, on = ({k: float(np.mean([r[i].as_dict()[k] for r in rows])) for k in rows[0][0].as_dict()} for i in (0, 1))
+        cells = (
+            f"`{profile}`",
+            f"{off['epe']:.4f} / {on['epe']:.4f}",
+            times(on["epe"] / off["epe"]),
+            f"{off['bad2']:.4f} / {on['bad2']:.4f}",
+            f"{off['bad2_est']:.4f} / {on['bad2_est']:.4f}",
+            f"{off['density']:.4f} / {on['density']:.4f}",
+        )
+        print(table_row(cells), flush=True)
+
+
+def edge_picture(scene: Scene, without: np.ndarray, with_filter: np.ndarray, path: Path) -> None:
+    """The 96x96 window holding the most ground-truth depth edge (steps over 2 px), enlarged 4x."""
+    assert scene.gt is not None
+    gt = np.nan_to_num(scene.gt)
+    steps = (np.abs(np.diff(gt, axis=1, prepend=0)) > 2) | (np.abs(np.diff(gt, axis=0, prepend=0)) > 2)
+    steps &= np.isfinite(scene.gt)
+    size = 96
+    density = cv2.boxFilter(steps.astype(np.float32), -1, (size, size), normalize=False)
+    centres = density[size // 2 : -size // 2, size // 2 : -size // 2]  # windows inside the image, by top-left
+    y, x = np.unravel_index(int(np.argmax(centres)), centres.shape)
+    window = np.s_[y : y + size, x : x + size]
+    top = float(np.nanmax(scene.gt[window]))
+    images = [scene.left[window]] + [colorize_disparity(d[window], top) for d in (scene.gt, without, with_filter)]
+    names = ("left", "ground truth", "without", "with spatial_filter")
+    panels = [
+        label(cv2.resize(i, None, fx=4, fy=4, interpolation=cv2.INTER_NEAREST), n)
+        for i, n in zip(images, names, strict=True)
+    ]
+    write_picture(path, np.hstack(panels))
+
+
+def write_picture(path: Path, image: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), image)
+    print(f"picture: {path}", file=sys.stderr)
+
+
+def recording_frames(folder: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], StereoCamera | None]:
+    """A recording's pairs with its calibration: raw EuRoC frames (left/, right/, the sensor.yaml files), or
+    a rectified scene (one pair, None)."""
+    if not (folder / "cam0_sensor.yaml").is_file():
+        scene = load_scene(folder)
+        return [(scene.left, scene.right)], None
+    camera = StereoCamera(*stereo_camera_infos(folder / "cam0_sensor.yaml", folder / "cam1_sensor.yaml"))
+    names = sorted(path.name for path in (folder / "left").glob("*.png"))
+    return [(read(folder / "left" / name), read(folder / "right" / name)) for name in names], camera
+
+
+def read(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise SystemExit(f"ERROR: cannot read {path}")
+    return image
+
+
+def glare(args: argparse.Namespace) -> None:
+    print(
+        f"profile `{args.profile}`; glare: the saturated textureless area of the left image, and the left pixels "
+        "whose match lies in that of the right image; sums over all frames:"
+    )
+    columns = ("recording", "frames", "glare: left + seen in right", "valid in glare: off / on")
+    print(table_header((*columns, "density outside: off / on", "drop")))
+    for folder in args.recordings:
+        pairs, camera = recording_frames(folder)
+        pipelines = [StereoPipeline(make_params(args.profile, {"invalidate_saturated": on})) for on in (False, True)]
+        level = pipelines[0].params.saturation_level
+        counts = np.zeros(8)  # left glare, seen in right; glare, valid there off, on; outside, valid there off, on
+        for index, (left, right) in enumerate(pairs):
+            off, on = (p.match(left, right, camera, rectified=camera is None) for p in pipelines)
+            shape = off.disparity.shape
+            area = off.glare if off.glare is not None else np.zeros(shape, bool)
+            right_glare = rectified_glare(right, None, camera, "right", shape, level)
+            seen = seen_in_right(off.disparity, right_glare) & ~area if right_glare is not None else np.zeros_like(area)
+            counts[:2] += (area.sum(), seen.sum())
+            valid_off, valid_on = np.isfinite(off.disparity), np.isfinite(on.disparity)
+            for k, pixels in enumerate((area | seen, ~(area | seen))):
+                counts[2 + 3 * k : 5 + 3 * k] += (pixels.sum(), valid_off[pixels].sum(), valid_on[pixels].sum())
+            if index == 0 and args.pictures:
+                glare_picture(
+                    args.pictures / f"glare_{folder.parent.name}_{folder.name}.png", off, on.disparity, area | seen
+                )
+        left_n, seen_n, glare_n, in_off, in_on, out_n, out_off, out_on = counts[0], *counts[1:]
+        cells = (
+            f"{folder.parent.name}/{folder.name}",
+            len(pairs),
+            f"{left_n / (glare_n + out_n):.4f} + {seen_n / (glare_n + out_n):.4f}",
+            f"{in_off / max(glare_n, 1):.4f} / {in_on / max(glare_n, 1):.4f}",
+            f"{out_off / out_n:.4f} / {out_on / out_n:.4f}",
+            f"{(out_off - out_on) / out_n:.4f}",
+        )
+        print(table_row(cells), flush=True)
+
+
+def glare_picture(path: Path, off: StereoResult, on: np.ndarray, area: np.ndarray) -> None:
+    """Rectified left with the glare in red | disparity without | with invalidate_saturated, at half size."""
+    marked = cv2.cvtColor(off.left_rect, cv2.COLOR_GRAY2BGR)
+    marked[area] = (0.5 * marked[area] + (0, 0, 127)).astype(np.uint8)
+    top = float(np.nanmax(off.disparity))
+    images = (marked, colorize_disparity(off.disparity, top), colorize_disparity(on, top))
+    names = ("rectified left, glare in red", "invalidate_saturated off", "invalidate_saturated on")
+    half = (marked.shape[1] // 2, marked.shape[0] // 2)
+    panels = [label(cv2.resize(i, half, interpolation=cv2.INTER_AREA), n) for i, n in zip(images, names, strict=True)]
+    write_picture(path, np.hstack(panels))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     questions = parser.add_subparsers(dest="question", required=True)
@@ -331,9 +568,21 @@ def main() -> None:
     questions.add_parser("removed", help="near_detection at each scene's own range: pixels removed, bad-2 after")
     cost = questions.add_parser("check-cost", help="confidence and too-near detection time against the match's")
     cost.add_argument("--repeat", type=int, default=15)
+    smoothed = questions.add_parser("spatial", help="each profile without and with spatial_filter")
+    smoothed.add_argument("--profiles", nargs="+", choices=sorted(PROFILES), default=["default", "quality"])
+    smoothed.add_argument("--picture", type=Path, help="draw the first scene's strongest depth edge here (PNG)")
     for question in questions.choices.values():
         question.add_argument("scenes", nargs="+", type=Path)
         question.add_argument("--markdown", action="store_true", help="(always markdown tables)")
+    glared = questions.add_parser("glare", help="valid disparities in glare without and with invalidate_saturated")
+    glared.add_argument("recordings", nargs="+", type=Path)
+    glared.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    glared.add_argument("--pictures", type=Path, help="folder for one picture per recording (PNG)")
+    glared.add_argument("--markdown", action="store_true", help="(always markdown tables)")
+    registered = questions.add_parser("registration", help="registered depth against the right ground truth")
+    registered.add_argument("--data", type=Path, required=True, help="searched for scenes with disp_gt_right.png")
+    registered.add_argument("--profile", default="default", choices=sorted(PROFILES))
+    registered.add_argument("--markdown", action="store_true", help="(always markdown tables)")
     args = parse_bench_arguments(parser, "(always markdown tables)")
     questions_run = {
         "profiles": profiles,
@@ -343,6 +592,9 @@ def main() -> None:
         "too-near": too_near,
         "removed": removed_pixels,
         "check-cost": check_cost,
+        "registration": registration,
+        "spatial": spatial,
+        "glare": glare,
     }
     questions_run[args.question](args)
 

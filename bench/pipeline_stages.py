@@ -9,8 +9,17 @@ baseline does what a hand-written OpenCV script would: remap x2, the matcher, re
 process, interleaved (profiles too, frame by frame), and the table gives medians and three ratios: the
 pipeline alone / bare, everything the node does per frame (decode + pipeline + encode) / bare, and the
 match stage / the first profile's match stage (`--profiles default quality`: quality's time in SGBM's).
+A second table gives the cost of the glare invalidation (invalidate_saturated: both images' glare, the
+right one's seen through the disparity) and of the spatial filter at 640x480 against the first profile's
+match stage, interleaved with it (the EuRoC pair holds a bright window, so the glare stage does all its work).
 
     .venv/bin/python bench/pipeline_stages.py [--repeat 20] [--profiles default fast stereo_image_proc] [--markdown]
+    .venv/bin/python bench/pipeline_stages.py --registration [--repeat 20] [--profiles default]
+
+--registration: instead, at 640x480, the match stage against registering the frame's depth to a colour
+camera (depth_registered/image_rect as stereo_node builds it: the colour image decoded, the depth projected
+into it, the message), the right camera's raw image given again as the colour camera; interleaved frame by
+frame in one run, medians and their ratio.
 """
 
 from __future__ import annotations
@@ -26,12 +35,24 @@ import cv2
 import numpy as np
 
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.matching import Matcher, create_matcher
+from stereo_depth.core.matching import Matcher, MatchResult, create_matcher
 from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import STAGES, StereoPipeline
+from stereo_depth.core.saturation import invalidate_glare, rectified_glare
+from stereo_depth.core.spatial import spatial_filter
 from stereo_depth.formats.euroc import stereo_camera_infos
-from stereo_depth.frames import disparity_message
-from stereo_depth.messages import MessageBuffer, array_to_image, depth_to_cloud, image_to_pipeline, make_header
+from stereo_depth.formats.kalibr import pose_of
+from stereo_depth.frames import Geometry, disparity_message
+from stereo_depth.frames.registered import FrameDepth, RegisteredJob, Registration
+from stereo_depth.messages import (
+    MessageBuffer,
+    array_to_image,
+    camera_info_to_msg,
+    depth_to_cloud,
+    image_to_pipeline,
+    make_header,
+)
+from stereo_depth.options import OutputOptions
 from stereo_depth.ros.types import RCLPY_TYPES
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -115,12 +136,60 @@ def markdown_row(profile: str, size: str, med: dict[str, float], bare: list[floa
     return table_row((*cells, times(med["match"] / first_match)))
 
 
+def registration_job(
+    pipeline: StereoPipeline, messages: tuple[object, object], camera: StereoCamera
+) -> tuple[float, RegisteredJob]:
+    """(match ms, a registered job of this frame's depth, the right camera as the colour camera)."""
+    left, right = image_to_pipeline(messages[0]), image_to_pipeline(messages[1])
+    result = pipeline.match(left, right, camera)
+    pipeline.add_geometry(result, want_points=False)
+    assert result.camera is not None and result.depth is not None
+    # the right camera's raw frame in the left's: x_left_rect = R_l x_left, x_right_rect = R_r x_right - B e_x
+    transform = np.eye(4)
+    transform[:3, :3] = camera.left.r.T @ camera.right.r
+    transform[:3, 3] = camera.left.r.T @ np.array([camera.baseline, 0.0, 0.0])
+    pose = pose_of(transform)
+    raw = camera.right
+    colour = dataclasses.replace(raw, r=np.eye(3), p=np.hstack([raw.k, np.zeros((3, 1))]))
+    header = make_header(RCLPY_TYPES, 1, "colour")
+    geometry = Geometry(result.depth, result.camera, pipeline.rays_for(result.camera), result.left_rect, camera)
+    registration = Registration(RCLPY_TYPES)
+    registration.add_colour(messages[1], camera_info_to_msg(RCLPY_TYPES, header, colour))
+    jobs = registration.add_depth(1, FrameDepth(geometry, OutputOptions(rgb_in_left=pose)))
+    assert len(jobs) == 1
+    return result.timings_ms["match"], jobs[0]
+
+
+def registration_cost(args: argparse.Namespace) -> None:
+    left, right, camera = load_pair(640, 480)
+    header_msg = make_header(RCLPY_TYPES, 1, "left")
+    messages = (array_to_image(RCLPY_TYPES, header_msg, left), array_to_image(RCLPY_TYPES, header_msg, right))
+    pipelines = {p: StereoPipeline(make_params(p, {"disparity_range": args.disparity_range})) for p in args.profiles}
+    match: dict[str, list[float]] = {p: [] for p in args.profiles}
+    register: dict[str, list[float]] = {p: [] for p in args.profiles}
+    for _ in range(args.repeat + 2):
+        for profile in args.profiles:
+            match_ms, job = registration_job(pipelines[profile], messages, camera)
+            _, register_ms = job.run(("depth_registered/image_rect",))
+            match[profile].append(match_ms)
+            register[profile].append(register_ms)
+    print("640x480, the right camera (raw, distorted) given again as the colour camera; medians:")
+    print(table_header(("profile", "match ms", "registration ms", "registration / match")))
+    for profile in args.profiles:
+        match_ms, register_ms = (statistics.median(runs[profile][2:]) for runs in (match, register))
+        print(table_row((profile, f"{match_ms:.1f}", f"{register_ms:.1f}", times(register_ms / match_ms))), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)
     parser.add_argument("--profiles", nargs="+", default=["default", "fast", "stereo_image_proc"])
     parser.add_argument("--disparity-range", type=int, default=64)
+    parser.add_argument("--registration", action="store_true", help="the cost of registered depth against matching")
     args = parse_bench_arguments(parser)
+    if args.registration:
+        registration_cost(args)
+        return
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, disparity_range {args.disparity_range}")
     if args.markdown:
         columns = ("profile", "size", "match ms", "pipeline ms", "node ms", "bare OpenCV ms", "node / bare")
@@ -161,6 +230,33 @@ def main() -> None:
             else:  # downsampling / hole filling: no bare OpenCV call does the same work
                 row += f"{'-':>8s}{'-':>10s}{'-':>10s}"
             print(row + f"{med['match'] / first:10.2f}", flush=True)
+    option_costs(args.profiles[0], args.disparity_range, args.repeat)
+
+
+def option_costs(profile: str, disparity_range: int, repeat: int) -> None:
+    """The glare invalidation's and the spatial filter's time per 640x480 frame against the match stage."""
+    left, right, camera = load_pair(640, 480)
+    params = make_params(profile, {"disparity_range": disparity_range, "invalidate_saturated": False})
+    pipeline = StereoPipeline(params)
+    runs: dict[str, list[float]] = {"match": [], "invalidate_saturated": [], "spatial_filter": []}
+    for _ in range(repeat + 2):
+        result = pipeline.match(left, right, camera)
+        runs["match"].append(result.timings_ms["match"])
+        start = time.perf_counter()
+        shape = result.left_rect.shape
+        glare = rectified_glare(left, result.left_rect, camera, "left", shape, params.saturation_level)
+        right_glare = rectified_glare(right, result.right_rect, camera, "right", shape, params.saturation_level)
+        invalidate_glare(MatchResult(result.disparity.copy()), glare, right_glare)
+        glared = time.perf_counter()
+        spatial_filter(result.disparity, params.spatial, result.left_rect)
+        runs["invalidate_saturated"].append((glared - start) * 1000.0)
+        runs["spatial_filter"].append((time.perf_counter() - glared) * 1000.0)
+    med = {name: statistics.median(times_ms[2:]) for name, times_ms in runs.items()}
+    glare_share = float(glare.mean()) if glare is not None else 0.0
+    print(f"\nprocessing options at 640x480, `{profile}` (glare: {glare_share:.3f} of the left image):")
+    print(table_header(("stage", "ms per frame", "vs match")))
+    for name, ms in med.items():
+        print(table_row((name, f"{ms:.2f}", times(ms / med["match"]))))
 
 
 if __name__ == "__main__":

@@ -3,6 +3,10 @@
     ros2 launch stereo_depth stereo_depth.launch.py namespace:=stereo \
         left_namespace:=/camera/left right_namespace:=/camera/right params_file:=/path/params.yaml
     ros2 launch stereo_depth stereo_depth.launch.py split_nodes:=true   # stereo_image_proc's layout
+    ros2 launch stereo_depth stereo_depth.launch.py rgb_namespace:=/camera/color params_file:=/path/rgbd.yaml
+
+With rgb_in_left set (in the params_file), stereo_node reads the colour camera under `rgb_namespace` and
+publishes depth registered to it (docs/rgbd.md).
 
 Defaults live in the nodes (declared once, from the dataclasses), so nothing is restated here.
 `profile` picks the defaults; a `params_file` (config/stereo_depth.yaml lists every parameter) wins
@@ -23,6 +27,10 @@ ARGUMENTS = {
     "namespace": ("", "Namespace of the nodes and their outputs"),
     "left_namespace": ("left", "Topic namespace of the left camera (image_raw, camera_info)"),
     "right_namespace": ("right", "Topic namespace of the right camera"),
+    "rgb_namespace": (
+        "rgb",
+        "Topic namespace of the colour camera (image_raw, camera_info), read with rgb_in_left set",
+    ),
     "params_file": ("", "Parameter YAML (e.g. config/stereo_depth.yaml); empty: the profile's defaults"),
     "profile": ("default", f"Named defaults: {', '.join(PROFILES)}"),
     "split_nodes": ("false", "true: rectify_node x2 -> disparity_node -> point_cloud_node"),
@@ -36,6 +44,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
     if arg["params_file"]:
         parameters.insert(0, arg["params_file"])
     cameras = {"left": arg["left_namespace"].rstrip("/"), "right": arg["right_namespace"].rstrip("/")}
+    colour = arg["rgb_namespace"].rstrip("/")
 
     def to_cameras(*names: str, sides: tuple[str, ...] = ("left", "right")) -> list[tuple[str, str]]:
         """A node's `<side>/<name>` topics renamed to the camera's own `<camera namespace>/<name>`."""
@@ -46,6 +55,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
         remaps = [
             *to_cameras("image_raw", "camera_info"),
             *to_cameras("image_rect", "image_rect_color"),  # both: what stereo odometry subscribes
+            *((f"rgb/{name}", f"{colour}/{name}") for name in ("image_raw", "camera_info")),  # with rgb_in_left
         ]
         return [Node(executable="stereo_node", name="stereo_node", remappings=remaps, **common)]
     cloud_image = "image_rect_color" if arg["color"].lower() == "true" else "image_rect"

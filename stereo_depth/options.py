@@ -23,8 +23,9 @@ from typing import Any
 
 import yaml
 
-from stereo_depth.core.option_fields import check_ranges, coerced, option, spec_of
+from stereo_depth.core.option_fields import check_ranges, coerced, option, pose_option, spec_of
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams
+from stereo_depth.core.pose import Pose
 from stereo_depth.errors import ParameterError
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import COMPRESSED_DEPTH_FORMATS, DEFAULT_MAX_PIXELS
@@ -120,6 +121,20 @@ class OutputOptions:
     )
     compressed_depth_png_level: int = option(
         3, "depth/compressedDepth PNG compression level (the transport's png_level)", 0, 9, 1
+    )
+    # depth registered to a colour camera (frames/registered.py)
+    rgb_in_left: Pose = pose_option(
+        "The colour camera's optical frame in the left camera's optical frame as calibrated (the raw left "
+        "camera_info's frame, as URDF and Kalibr give it), [x, y, z, qx, qy, qz, qw]: set, the node reads "
+        "rgb/image_raw + rgb/camera_info and publishes depth_registered/image_rect, depth_registered/camera_info, "
+        "rgb/image_rect_color and depth_registered/points. Seven zeros: off (read at start-up)"
+    )
+    rgb_sync_tolerance_seconds: float = option(
+        0.016,
+        "A colour image pairs with the stereo set nearest in stamp within this, s (about half a colour frame "
+        "period); a stereo set with none gives no registered output",
+        0.0,
+        1.0,
     )
 
     def validate(self) -> OutputOptions:
@@ -238,6 +253,13 @@ class NodeOptions:
     interpolation: int = option(
         1, "Rectification interpolation: 0 nearest, 1 linear, 2 cubic, 3 area, 4 lanczos4", 0, 4, 1
     )
+    # depth registered to a colour camera
+    rgb_image_transport: str = option(
+        "raw",
+        "The colour input, read at start-up: raw (rgb/image_raw) or compressed (rgb/image_raw/compressed), "
+        "apart from the stereo pair's image_transport",
+        choices=("raw", "compressed"),
+    )
 
     def validate(self) -> NodeOptions:
         return check_ranges(self)
@@ -285,7 +307,10 @@ CLOUD_OPTIONS = (
 # what the driver got wrong, stated by the user (point_cloud_node, which has no image pair, takes baseline only)
 DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
-STARTUP_OPTIONS = frozenset((*CAMERA_OPTIONS, "executor"))  # they choose the subscriptions: read-only once running
+# depth registered to a colour camera: its pose switches the colour inputs on (stereo_node)
+REGISTRATION_OPTIONS = ("rgb_in_left", "rgb_sync_tolerance_seconds", "rgb_image_transport")
+# they choose the subscriptions: read-only once running
+STARTUP_OPTIONS = frozenset((*CAMERA_OPTIONS, "executor", "rgb_in_left", "rgb_image_transport"))
 
 
 @dataclass(frozen=True)

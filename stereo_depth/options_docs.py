@@ -149,6 +149,9 @@ def _type_name(msg_type: Any) -> str:
 
 
 def _topics(node: Any) -> list[str]:
+    from stereo_depth.frames.registered import REGISTERED_OUTPUTS  # the page imports rclpy, the YAML does not
+    from stereo_depth.ros.colour_input import COLOUR_SPEC
+
     files = dict(node.CAMERA_INFO_FILES)
     rows = ["### Subscribed topics", "", "| topic | type | notes |", "|---|---|---|"]
     for index, (topic, msg_type) in enumerate(node.INPUTS):
@@ -158,9 +161,15 @@ def _topics(node: Any) -> list[str]:
         if index in files:
             notes.append(f"not subscribed when `{files[index]}` names a file")
         rows.append(f"| `{topic}` | {_type_name(msg_type)} | {'; '.join(notes)} |")
+    registering = "rgb_in_left" in node.OPTIONS
+    for topic, msg_type in COLOUR_SPEC.inputs if registering else ():
+        note = "only with `rgb_in_left` set"
+        if topic.endswith("image_raw"):
+            note += f"; with `rgb_image_transport: compressed`: `{topic}/compressed` (sensor_msgs/CompressedImage)"
+        rows.append(f"| `{topic}` | {_type_name(msg_type)} | {note} |")
     rows += ["", "### Published topics", "", "| topic | type | switched by |", "|---|---|---|"]
     for topic, msg_type in (*node.OUTPUTS, node.STATUS_OUTPUT):
-        switch = node.OUTPUT_SWITCHES.get(topic)
+        switch = "rgb_in_left" if topic in REGISTERED_OUTPUTS else node.OUTPUT_SWITCHES.get(topic)
         rows.append(f"| `{topic}` | {_type_name(msg_type)} | {f'`{switch}`' if switch else 'always'} |")
     return [*rows, ""]
 

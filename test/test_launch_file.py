@@ -151,7 +151,11 @@ def topics(
     relative to its namespace, as `ros2 node info` lists them."""
     executables = ("stereo_node", "rectify_node", "disparity_node", "point_cloud_node")
     logs = tmp_path_factory.mktemp("launch_nodes")
-    processes = [NodeProcess(executable, NS, ros_env, logs) for executable in executables]
+    registering = ["-p", "rgb_in_left:=[0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]"]  # stereo_node's colour inputs too
+    processes = [
+        NodeProcess(executable, NS, ros_env, logs, registering if executable == "stereo_node" else ())
+        for executable in executables
+    ]
     with ros.running(processes):
         yield {process.name: node_topics(ros, process) for process in processes}
 
@@ -175,7 +179,7 @@ def node_topics(ros: RosHarness, process: NodeProcess) -> set[str]:
 def test_every_remap_renames_a_topic_of_its_node(launch_file: dict[str, Any], topics: dict[str, set[str]]) -> None:
     """A remap naming no topic of its node does nothing, silently: the camera's topics it meant to
     connect stay apart."""
-    cameras = {"left_namespace": "/camera/left", "right_namespace": "/camera/right"}
+    cameras = {"left_namespace": "/camera/left", "right_namespace": "/camera/right", "rgb_namespace": "/camera/color"}
     for layout in LAYOUTS:
         nodes = launched(launch_file, **layout, **cameras)
         for node in nodes:

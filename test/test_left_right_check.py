@@ -31,8 +31,9 @@ def valid(matcher: str, disp12_max_diff: int) -> int:
 @pytest.mark.parametrize("mode", [0, 2], ids=["SGBM (two halves)", "SGBM_3WAY"])
 @pytest.mark.parametrize("disp12_max_diff", [0, 3])
 def test_sgbm_gives_plain_opencv_sgbm_bit_for_bit(disp12_max_diff: int, mode: int) -> None:
-    """What a stereo_image_proc user gets from cv2.StereoSGBM with the same settings, 0 included."""
-    ours = disparity("sgbm", disp12_max_diff, sgbm_mode=mode)
+    """What a stereo_image_proc user gets from cv2.StereoSGBM with the same settings, 0 included, with
+    near_detection off (on, the pixels too near for the range are invalid)."""
+    ours = disparity("sgbm", disp12_max_diff, sgbm_mode=mode, near_detection=False)
     p = make_params("default", {"sgbm_mode": mode})
     plain = cv2.StereoSGBM.create(
         minDisparity=p.min_disparity,

@@ -23,6 +23,7 @@ from test_qos_overrides import publisher_reliability, subscription_reliability
 
 from stereo_depth.core.params import StereoParams
 from stereo_depth.formats.camera_info_yaml import camera_info_to_yaml
+from stereo_depth.frames.registered import REGISTERED_OUTPUTS
 from stereo_depth.nodes.stereo_node import OUTPUT_TYPES, StereoNode
 
 NODE = "stereo_lifecycle_node"
@@ -67,8 +68,10 @@ class Managed:
             wait_until(lambda t=topic: self.subscriptions(t) == count, f"{count} subscriptions on {topic}")
 
     def wait_outputs(self, count: int) -> None:
+        """Registered depth's outputs exist only with rgb_in_left set: never here."""
         for topic in (*OUTPUT_TYPES, "diagnostics"):
-            wait_until(lambda t=topic: self.publishers(t) == count, f"{count} publishers of {topic}")
+            expected = 0 if topic in REGISTERED_OUTPUTS else count
+            wait_until(lambda t=topic, n=expected: self.publishers(t) == n, f"{expected} publishers of {topic}")
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +163,7 @@ def test_full_cycle_publishes_only_while_active_and_releases_on_deactivate_and_c
 
     results = stop_all([managed.process])  # from finalized: exit 0, no traceback
     log = results[managed.process.fqn][1]
-    publishers = len(OUTPUT_TYPES) + 1  # and diagnostics
+    publishers = len(set(OUTPUT_TYPES) - set(REGISTERED_OUTPUTS)) + 1  # and diagnostics; no rgb_in_left
     for line in (
         f"configure: done, matcher built, {publishers} publishers, 0 subscriptions, workers stopped",
         f"activate: done, matcher built, {publishers} publishers, 4 subscriptions, workers running",

@@ -1,8 +1,8 @@
 """List-valued options and pose options, through the paths users take: `process --set` and `--params`,
 the generated YAML and parameters page, and a node's parameters set over its parameter service.
 
-No shipped option is a list yet, so the output options gain two here (a subclass put in place of
-OutputOptions where the commands, the nodes' parameters and the documents read it).
+The output options gain a pose and a list of their own here (a subclass put in place of OutputOptions where
+the commands, the nodes' parameters and the documents read it), apart from the shipped ones.
 """
 
 from __future__ import annotations

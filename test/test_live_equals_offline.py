@@ -35,7 +35,10 @@ CLOUD = {"organized_cloud": "false", "cloud_voxel_size": "0.05", "min_depth": "0
 LIVE_ONLY = ("matching_threads", "max_waiting_frames")  # how the node runs, not what it computes
 # name: (stereo_node -p values, the outputs compared); `process` gets the same values with --set
 VARIANTS = {
-    "quality": ({"profile": "quality"}, ("disparity", "depth", "points2", "confidence", "left/image_rect")),
+    "quality": (
+        {"profile": "quality", "spatial_filter": "true"},  # invalidate_saturated on too: the bag holds a bright window
+        ("disparity", "depth", "points2", "confidence", "left/image_rect"),
+    ),
     "fast_two_threads": (
         {"profile": "fast", "matching_threads": "2"},
         ("disparity", "depth", "confidence", "left/image_rect"),

@@ -32,6 +32,7 @@ from test_nodes import Pair, StereoInput, euroc_pair, send_with_parameters, wait
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
 from stereo_depth.core.rvl import rvl_compress
+from stereo_depth.core.saturation import glare_area, saturated
 from stereo_depth.frames import depth_pixels
 from stereo_depth.messages import (
     COMPRESSED_DEPTH_FORMATS,
@@ -230,16 +231,15 @@ def clearing_pixels(cloud: Any, info: Any, shape: tuple[int, int]) -> tuple[np.n
 
 
 def glare(left_rect: Any) -> np.ndarray:
-    """Pixels within one pixel of a saturated one in the rectified left image: white, no texture."""
-    saturated = (image_to_array(left_rect) == 255).astype(np.uint8)
-    return (cv2.dilate(saturated, np.ones((3, 3), np.uint8)) > 0).ravel()
+    """The glare of the rectified left image (8-bit, as matched): saturated, no texture."""
+    return glare_area(saturated(image_to_array(left_rect), 255)).ravel()
 
 
 def test_pixels_beyond_max_depth_clear_out_to_the_clamp_and_never_mark(
     ros: RosHarness, nav: dict[str, Any], euroc: Pair
 ) -> None:
-    full = image_to_array(send(ros, nav, euroc)["depth"])
-    got = send(ros, nav, euroc, max_depth=5.0, clearing_max_depth=7.0)
+    full = image_to_array(send(ros, nav, euroc, invalidate_saturated=False)["depth"])  # the window's depth too
+    got = send(ros, nav, euroc, max_depth=5.0, clearing_max_depth=7.0, invalidate_saturated=False)
     cloud = got["points2_clearing"]
     assert (cloud.height, cloud.is_dense) == (1, True)
     pixels, z = clearing_pixels(cloud, got["depth/camera_info"], full.shape)
@@ -257,13 +257,13 @@ def test_pixels_beyond_max_depth_clear_out_to_the_clamp_and_never_mark(
 
 def test_glare_casts_no_clearing_ray(ros: RosHarness, nav: dict[str, Any], euroc: Pair) -> None:
     """SGBM matches the window glare of the EuRoC room below 1 px (as if beyond 50 m): a clearing ray
-    from there would clear whatever stands in front of it. (near_detection off: it already drops most of
-    those, the ones its confidence does not back.)"""
-    got = send(ros, nav, euroc, clearing_max_depth=100.0, near_detection=False)
+    from there would clear whatever stands in front of it. (near_detection and invalidate_saturated off: they
+    already drop most of those, the ones the confidence does not back and the glare itself.)"""
+    got = send(ros, nav, euroc, clearing_max_depth=100.0, near_detection=False, invalidate_saturated=False)
     message = got["disparity"]
     smallest = (disparity_from_msg(message) < message.min_disparity + 1).ravel()
     in_glare = smallest & glare(got["left/image_rect"])
-    assert in_glare.sum() > 1000  # the glare this frame holds, matched at the smallest disparity
+    assert in_glare.sum() > 500  # the glare this frame holds, matched at the smallest disparity
     shape = image_to_array(got["depth"]).shape
     pixels, _ = clearing_pixels(got["points2_clearing"], got["depth/camera_info"], shape)
     assert not np.isin(np.flatnonzero(in_glare), pixels).any()
@@ -318,8 +318,16 @@ def test_rvl_sends_depth_with_nothing_valid_as_png_and_says_so_once(
 def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -> None:
     out = tmp_path / "nav"
     outputs = ["depth", "depth/camera_info", "depth/compressedDepth", "points2", "points2_clearing", "left/image_rect"]
-    settings = ["depth_encoding=16UC1", "max_depth=5", "clearing_max_depth=7", "compressed_depth_max_depth=20"]
-    settings.append("near_detection=false")  # it leaves out most far pixels the matcher is unsure of
+    # near_detection leaves out most far pixels the matcher is unsure of; invalidate_saturated the window's
+    # far depth too: the clearing rule holds them back alone
+    matched_glare = ["near_detection=false", "invalidate_saturated=false"]
+    settings = [
+        "depth_encoding=16UC1",
+        "max_depth=5",
+        "clearing_max_depth=7",
+        "compressed_depth_max_depth=20",
+        *matched_glare,
+    ]
     args = ["process", str(BAG), str(out), "--outputs", *outputs, *(a for s in settings for a in ("--set", s))]
     assert main(args) == 0
     topics = {name: f"/stereo/{name}" for name in outputs}
@@ -327,7 +335,8 @@ def test_process_writes_both_on_request_and_neither_by_default(tmp_path: Path) -
     got = {name: messages[topic] for name, topic in topics.items()}
     assert all(len(m) == 6 for m in got.values())
     free = tmp_path / "free"
-    assert main(["process", str(BAG), str(free), "--set", "depth_encoding=16UC1", "--set", "near_detection=false"]) == 0
+    extra = [a for s in matched_glare for a in ("--set", s)]
+    assert main(["process", str(BAG), str(free), "--set", "depth_encoding=16UC1", *extra]) == 0
     full_depths = read_messages(free, ["/stereo/depth"])["/stereo/depth"]
     metadata = yaml.safe_load((free / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     written = {t["topic_metadata"]["name"] for t in metadata["topics_with_message_count"]}

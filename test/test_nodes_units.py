@@ -32,6 +32,7 @@ from std_msgs.msg import Header
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.core.geometry import Rays
+from stereo_depth.core.option_fields import plain_value
 from stereo_depth.core.params import PROFILES, StereoParams
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.errors import ImageError, MessageError, StereoDepthError
@@ -200,9 +201,8 @@ def test_config_yaml_lists_every_parameter_with_its_default() -> None:
     )
     values = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
     expected = {"profile": "default"}
-    expected |= {f.name: getattr(StereoParams(), f.name) for f in dataclasses.fields(StereoParams)}
-    expected |= {f.name: getattr(NodeOptions(), f.name) for f in dataclasses.fields(NodeOptions)}
-    expected |= {f.name: getattr(OutputOptions(), f.name) for f in dataclasses.fields(OutputOptions)}
+    for options in (StereoParams(), NodeOptions(), OutputOptions()):  # a pose as the list a parameter holds
+        expected |= {f.name: plain_value(getattr(options, f.name)) for f in dataclasses.fields(options)}
     assert values == expected
 
 

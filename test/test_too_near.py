@@ -7,12 +7,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from std_msgs.msg import Header
 
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.core.camera import StereoCamera
+from stereo_depth.core.match_checks import MatchChecks
+from stereo_depth.core.matching import MatchResult
 from stereo_depth.core.metrics import evaluation_mask
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
@@ -48,18 +51,47 @@ def test_a_surface_beyond_the_range_comes_out_invalid_not_farther(profile: str) 
     beyond_on, within_on = shares(profile, detection=True)
     assert beyond_off > 0.1 and beyond_on < 0.1, (beyond_off, beyond_on)
     # `fast` fills every hole without detection: it loses the holes the coarse search marks near the top
-    assert within_on > within_off - (0.1 if profile == "fast" else 0.04), (within_off, within_on)
+    # and the fills beside them that it does not back (on 10 Middlebury and KITTI scenes, 76 % of those
+    # were wrong by more than 2 px)
+    assert within_on > within_off - (0.12 if profile == "fast" else 0.04), (within_off, within_on)
 
 
 def test_hole_filling_leaves_too_near_pixels_invalid() -> None:
-    """`fast` fills every hole, but not the too-near pixels: they reach MatchResult.excluded."""
+    """`fast` fills every hole, but not the too-near pixels (they reach MatchResult.excluded), nor the
+    few beside them whose fill the coarse search does not back."""
     scene = load_scene(SCENES / "cones")
     params = make_params("fast", {"disparity_range": RANGE})
     result = StereoPipeline(params).match(scene.left, scene.right, None, rectified=True)
     assert result.too_near is not None and result.too_near.mean() > 0.2
     assert np.isnan(result.disparity[result.too_near]).all()
-    assert np.isfinite(result.disparity[~result.too_near]).mean() > 0.99
+    unfilled = np.isnan(result.disparity) & ~result.too_near
+    assert unfilled.mean() < 0.05
+    beside = cv2.dilate(result.too_near.view(np.uint8), np.ones((15, 15), np.uint8)) > 0  # 7 px: 3 at half size
+    assert beside[unfilled].all()
     assert result.confidence is not None and np.all(result.confidence[result.too_near] == 0.0)
+
+
+def test_a_sure_match_at_the_smallest_disparity_goes_where_the_coarse_search_sees_it_nearer() -> None:
+    """A cost curve that wrapped round can put a near surface at the smallest disparity with full
+    confidence (census_sgm did on Middlebury Dolls at 64): where the coarse search puts it well inside
+    the range it is dropped, so it casts no clearing ray."""
+    scene = load_scene(SCENES / "cones")
+    assert scene.gt is not None
+    shape = scene.gt.shape
+    match = MatchResult(np.zeros(shape, np.float32), np.ones(shape, np.float32))
+    left, right = (np.ascontiguousarray(image[:, :, 1]) for image in (scene.left, scene.right))
+    MatchChecks(make_params("quality", {"disparity_range": RANGE})).apply(match, left, right)
+    inside = evaluation_mask(scene.gt, scene.mask) & (scene.gt >= RANGE / 2) & (scene.gt < RANGE - MARGIN)
+    assert inside.mean() > 0.2
+    assert np.isfinite(match.disparity[inside]).mean() < 0.1
+
+
+def test_hole_filling_does_not_carry_the_background_over_the_edge_of_a_too_near_surface() -> None:
+    """Holes at the edge of a too-near surface that the coarse verdict (blocky to a coarse pixel) left
+    out would be filled from the background beyond it: beside too-near pixels a fill stays only where
+    the coarse search backs it. Without that rule `fast` outputs 0.048 of Cones' beyond-range pixels."""
+    beyond_on, _ = shares("fast", detection=True)
+    assert beyond_on < 0.035, beyond_on
 
 
 def artl_outputs(near_points: str) -> tuple[dict[str, Any], StereoCamera, np.ndarray]:

@@ -6,10 +6,11 @@ and the same bag replayed into the node give bit-identical outputs.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from stereo_depth.core.pipeline import STAGES, StereoResult
 from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import DEFAULT_OUTPUTS, FrameOutputs, FrameStream, Geometry
+from stereo_depth.frames.registered import REGISTERED_OUTPUTS, ColourNames, RegisteredJob, check_registered_outputs
 from stereo_depth.options import NodeOptions, OutputOptions
 from stereo_depth.sync import StereoSet
 
@@ -62,6 +64,8 @@ class ProcessSummary:
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # each once: what held for frames that still came out
+    registered: int = 0  # colour images registered (rgb_in_left)
+    without_colour: int = 0  # stereo frames no colour image paired with
 
     @property
     def frames_per_second(self) -> float:
@@ -95,6 +99,11 @@ class ProcessSummary:
             out.append(
                 f"  unmatched: {self.unmatched} messages found no partner with the same stamp "
                 "(try --approximate-sync, or a larger --queue-size)"
+            )
+        if self.registered or self.without_colour:
+            out.append(
+                f"  registered: {self.registered} colour images; {self.without_colour} frames had no colour image "
+                "within rgb_sync_tolerance_seconds"
             )
         out.extend(f"  skipped {n}x: {reason}" for reason, n in self.skipped.most_common())
         out.extend(f"  warning: {text}" for text in self.warnings)
@@ -159,6 +168,11 @@ def process_bag(
 ) -> ProcessSummary:
     """Process every matched frame of `in_bag` into `out_bag`; nothing appears at `out_bag` on failure."""
     options = options or ProcessOptions()
+    check_registered_outputs(options.outputs, options.output)
+    registered_outputs = tuple(name for name in options.outputs if name in REGISTERED_OUTPUTS)
+    choice = dataclasses.replace(
+        options.topics or TopicChoice(namespace=options.namespace), with_rgb=bool(registered_outputs)
+    )
     check_output(out_bag, options.overwrite)
     for folder in (options.png_dir, options.ply_dir):
         if folder is not None:
@@ -170,7 +184,7 @@ def process_bag(
             in_bag,
             namespace=options.namespace,
             sync=options.sync,
-            choice=options.topics,
+            choice=choice,
             window=options.window,
             lead_in_frames=lead_in_frames() if params.temporal_filter else 0,
         ) as reader,
@@ -185,10 +199,34 @@ def process_bag(
         topics = reader.topics
         # its cloud buffer: the writer serializes each message before the next frame
         stream = FrameStream(
-            rosbags_types(), params, options.output, rectified=topics.rectified, names=topics.input_names
+            rosbags_types(),
+            params,
+            options.output,
+            rectified=topics.rectified,
+            names=topics.input_names,
+            colour_names=ColourNames(*(name or "rgb --camera-info" for name in topics.rgb or ColourNames())),
         )
+
+        def write_registered(jobs: Iterable[RegisteredJob]) -> None:
+            for job in jobs:
+                try:
+                    messages, _ = job.run(registered_outputs)
+                except StereoDepthError as exc:
+                    summary.skipped[str(exc)] += 1
+                    continue
+                summary.registered += 1
+                for name, message in messages.items():
+                    write(name, message, job.stamp_ns)
+
+        def write(name: str, message: object, stamp_ns: int) -> None:
+            writer.write(topics.output(name), message, stamp_ns)
+            if topics.output(name) not in summary.topics:
+                summary.topics.append(topics.output(name))
+
         progress = Progress(reader.count(topics.names[0]), options.progress)
         for inputs in reader.frames():
+            while reader.colour_sets:  # the colour images recorded before this frame was complete
+                stream.registration.add_colour(*reader.colour_sets.popleft())
             if inputs.lead_in:  # a shard's frames before its first: only to fill the temporal filter
                 stream.lead_in(inputs)
                 continue
@@ -203,9 +241,8 @@ def process_bag(
                 summary.warnings.append(reason)
             messages = {**out.images, **(cloud.messages if cloud is not None else {})}
             for name, message in messages.items():
-                writer.write(topics.output(name), message, inputs.stamp_ns)
-                if topics.output(name) not in summary.topics:
-                    summary.topics.append(topics.output(name))
+                write(name, message, inputs.stamp_ns)
+            write_registered(cloud.registered if cloud is not None else ())
             stage_ms = {**out.stage_ms, **(cloud.stage_ms if cloud is not None else {})}
             for stage, ms in stage_ms.items():
                 summary.stage_ms[stage] = summary.stage_ms.get(stage, 0.0) + ms  # "temporal" only when on
@@ -215,6 +252,11 @@ def process_bag(
                 on_frame(summary.frames_out, inputs, out)
             summary.frames_out += 1
             progress.update(summary.frames_out)
+        while reader.colour_sets:
+            stream.registration.add_colour(*reader.colour_sets.popleft())
+        write_registered(stream.registration.flush())
+        if registered_outputs:
+            summary.without_colour = stream.registration.counters.unpaired_primary
         progress.close()
         stats = summary.read = reader.stats
         summary.left_images, summary.right_images = stats.left_images, stats.right_images

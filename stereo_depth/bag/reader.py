@@ -8,6 +8,10 @@ sensor_msgs/CompressedImage, each with its `camera_info` beside it. So a bag rec
 namespace works without naming topics; `--left/--right` name them when the conventions do not fit, and
 a calibration file replaces camera_info topics that are missing or wrong.
 Messages go through `sync.Synchronizer` in the order they were recorded, as they would arrive live.
+
+A colour camera beside the pair (registered depth) is read from `<ns>/rgb/` (image_raw, image_color,
+image_rect_color or their /compressed, with camera_info beside it) or the topics `--rgb`/`--rgb-info`
+name; its image and camera_info pair by stamp, and each pair waits in `colour_sets` for the caller.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class StereoTopics:
     namespace: str  # "" or "/ns", without a trailing slash
     names: tuple[str, str | None, str, str | None]  # in ROLES order; no camera_info topics with a calibration file
     rectified: bool
+    rgb: tuple[str, str | None] | None = None  # the colour image and its camera_info (None: a file's)
 
     def output(self, name: str) -> str:
         """An output topic under the same namespace as the input (e.g. /stereo/disparity)."""
@@ -78,6 +83,10 @@ class TopicChoice:
     right_info: str | None = None
     calibration: tuple[CameraInfo, CameraInfo] | None = None
     need_info: bool = True  # False: only the images are read (calibrate)
+    with_rgb: bool = False  # read the colour camera too (registered outputs)
+    rgb: str | None = None
+    rgb_info: str | None = None
+    rgb_calibration: CameraInfo | None = None  # replaces the colour camera_info topic (a camchain's cam2)
 
     @property
     def reads_info(self) -> bool:
@@ -220,7 +229,41 @@ def _rank(candidate: StereoTopics) -> tuple[bool, bool]:
 
 
 def chosen_topics(topics: dict[str, str], choice: TopicChoice) -> StereoTopics:
-    """The set the user named (--left/--right), else the one the conventions find."""
+    """The set the user named (--left/--right), else the one the conventions find; with its colour camera
+    when `choice.with_rgb`."""
+    stereo = _stereo_topics(topics, choice)
+    if not choice.with_rgb:
+        return stereo
+    return dataclasses.replace(stereo, rgb=colour_topics(topics, choice, stereo.namespace))
+
+
+def colour_topics(topics: dict[str, str], choice: TopicChoice, namespace: str) -> tuple[str, str | None]:
+    """(image, camera_info) of the colour camera: the ones named, else `<namespace>/rgb/...` (raw before
+    rectified, Image before CompressedImage); camera_info None when a calibration file replaces it."""
+    image = choice.rgb
+    if image is None:
+        names = [
+            f"{namespace}/rgb/{name}{kind}" for kind in ("", COMPRESSED) for name in (*RAW_IMAGES, *RECTIFIED_IMAGES)
+        ]
+        found = sorted((n for n in names if topics.get(n) in IMAGE_TYPES), key=_kind)
+        if not found:
+            msg = (
+                f"the registered outputs need a colour camera, but the bag has no image under {namespace}/rgb/ "
+                f"(image_raw, image_color, image_rect_color or their /compressed); name it with --rgb TOPIC and "
+                f"--rgb-info TOPIC; the bag has: {', '.join(sorted(topics))}"
+            )
+            raise BagError(msg)
+        image = found[0]
+    info = None if choice.rgb_calibration is not None else (choice.rgb_info or info_topic(image))
+    for name, types in ((image, IMAGE_TYPES), (info, (INFO_TYPE,))):
+        if name is not None and topics.get(name) not in types:
+            found_as = f"is {topics[name]}" if name in topics else "is not in the bag"
+            msg = f"colour camera: {name} {found_as}; expected {' or '.join(types)}; name it with --rgb / --rgb-info"
+            raise BagError(msg)
+    return image, info
+
+
+def _stereo_topics(topics: dict[str, str], choice: TopicChoice) -> StereoTopics:
     with_info = choice.reads_info
     if choice.left is None and choice.right is None:
         return find_stereo_topics(topics, choice.namespace, with_info)
@@ -291,6 +334,7 @@ class StereoBagReader:
             self._reader.close()
             raise
         self.stats = ReadStats()
+        self.colour_sets: deque[tuple[Any, Any]] = deque()  # (image, camera_info) paired, for the caller to take
 
     def topic_types(self) -> dict[str, str]:
         return {c.topic: c.msgtype for c in self._reader.connections}
@@ -313,6 +357,8 @@ class StereoBagReader:
         camera_info (stamped like the image), so what follows cannot tell the two apart; without
         camera_info at all (need_info False) the infos are None."""
         inputs = [name for name in self.topics.names if name is not None]
+        colour = [name for name in self.topics.rgb or () if name is not None]
+        colour_sync = Synchronizer(2, self.policy.queue_size, calibrations={1: 0}, same_calibration=same_calibration)
         sync = Synchronizer(
             len(inputs),
             self.policy.queue_size,
@@ -325,17 +371,30 @@ class StereoBagReader:
         role_of = {name: i for i, name in enumerate(inputs)}
         window = self.window
         lead_in: deque[StereoSet] = deque(maxlen=self.lead_in_frames or 1)
-        for topic, message in self._messages(inputs):
-            role = role_of[topic]
+        for topic, message in self._messages([*inputs, *colour]):
             stamp_ns = stamp_to_ns(message.header.stamp)
+            if topic in colour:
+                self._add_colour(colour_sync, colour.index(topic), stamp_ns, message)
+                continue
+            role = role_of[topic]
             if window.owns(stamp_ns):
                 self._count_input(topic)
             yield from self._owned(sync.add(role, stamp_ns, message), lead_in)
             if self.stats.handoff_ns is not None:
                 break
         else:  # the end of what this window reads: sets that wait only for a camera_info go out
+            self.colour_sets.extend((image, info) for _, (image, info) in colour_sync.flush())
             yield from self._owned(sync.flush(), lead_in)
         self.stats.unmatched_at_end = sync.pending()
+
+    def _add_colour(self, sync: Synchronizer, role: int, stamp_ns: int, message: Any) -> None:
+        """A colour image or camera_info; a calibration file's camera_info stands in for the topic."""
+        calibration = self.choice.rgb_calibration
+        if calibration is not None:
+            info = camera_info_to_msg(rosbags_types(), message.header, calibration)
+            self.colour_sets.append((message, info))
+            return
+        self.colour_sets.extend((image, info) for _, (image, info) in sync.add(role, stamp_ns, message))
 
     def _owned(self, sets: list[tuple[int, tuple[Any, ...]]], lead_in: deque[StereoSet]) -> Iterator[StereoSet]:
         """The sets the window owns. The first set past its end is the hand-off (set stamps only grow: the

@@ -1,5 +1,5 @@
 """`stereo-depth compile`: build the numba kernels' machine code ahead (the census_sgm core, our BM, the
-temporal filter, the compressedDepth RVL codec), so no first frame waits for it.
+temporal and spatial filters, the compressedDepth RVL codec, registered depth), so no first frame waits for it.
 
 numba compiles the core on its first use (once per install, one to two minutes on one core; cached
 afterwards). Run this once after installing (or in a robot image's build step); it prints where the cache
@@ -56,15 +56,17 @@ def build(share: int | None) -> str:
     folder."""
     import numpy as np
 
-    from stereo_depth.core import block_matching, temporal
+    from stereo_depth.core import block_matching, registration, spatial, temporal
     from stereo_depth.core.census_sgm import KERNEL_VARIANTS, compile_kernels
     from stereo_depth.core.rvl import rvl_compress
 
     variants = [v for v in KERNEL_VARIANTS if share is None or (v == STRIPS) == (share == 0)]
-    others = share != 0  # the hole filler, BM, the temporal filter and the RVL codec
+    others = share != 0  # the hole filler, BM, the temporal and spatial filters, the RVL codec, registration
     cache = compile_kernels(variants, fill=others)
     if others:
         block_matching.compile_kernels()
         temporal.compile_kernels()
+        spatial.compile_kernels()
         rvl_compress(np.zeros((2, 2), np.uint16))
+        registration.compile_registration_kernels()
     return cache

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ from typing import Any
 import yaml
 
 from stereo_depth.bag.process import ProcessOptions, process_bag
+from stereo_depth.bag.reader import TopicChoice
 from stereo_depth.bag.writer import STORAGES
 from stereo_depth.commands.common import (
     add_option_flags,
@@ -23,7 +25,9 @@ from stereo_depth.commands.process_many import add_fleet_options, check_single_b
 from stereo_depth.core.option_fields import option_names
 from stereo_depth.core.params import COMPAT_ALIASES, StereoParams, field_names, make_params
 from stereo_depth.errors import ParameterError
+from stereo_depth.formats.kalibr import is_camchain, read_camchain_colour
 from stereo_depth.frames import DEFAULT_OUTPUTS, OUTPUTS, camera_fixes
+from stereo_depth.frames.registered import REGISTERED_OUTPUTS
 from stereo_depth.options import (
     SYNC_OPTIONS,
     NodeOptions,
@@ -74,14 +78,19 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--outputs",
         nargs="+",
-        choices=OUTPUTS,
+        choices=(*OUTPUTS, *REGISTERED_OUTPUTS),
         default=list(DEFAULT_OUTPUTS),
         metavar="NAME",
         help=(
             f"topics to write (default: {' '.join(DEFAULT_OUTPUTS)}; colour and confidence when the input and "
-            "matcher give them; also depth/compressedDepth, points2_clearing); a VGA points2 is 10 MB a frame"
+            "matcher give them; also depth/compressedDepth, points2_clearing, and with rgb_in_left set "
+            f"{', '.join(REGISTERED_OUTPUTS)}); a VGA points2 is 10 MB a frame"
         ),
     )
+    parser.add_argument(
+        "--rgb", metavar="TOPIC", help="colour image topic for the registered outputs (default: <namespace>/rgb/...)"
+    )
+    parser.add_argument("--rgb-info", metavar="TOPIC", help="colour camera_info (default: beside --rgb)")
     parser.add_argument(
         "--compress", action="store_true", help="zstd-compress the MCAP chunks (smaller, about 2x slower to write)"
     )
@@ -140,18 +149,35 @@ def settings_from(args: argparse.Namespace) -> tuple[StereoParams, Settings]:
 
 
 def options_from(args: argparse.Namespace, settings: Settings) -> ProcessOptions:
+    topics, output = colour_choice(args, topic_choice(args), settings.output)
     return ProcessOptions(
         namespace=args.namespace,
-        topics=topic_choice(args),
+        topics=topics,
         sync=settings.options,
         storage=args.storage,
         compress=args.compress,
         outputs=tuple(args.outputs),
-        output=settings.output,
+        output=output,
         overwrite=args.overwrite,
         png_dir=args.png,
         ply_dir=args.ply,
     )
+
+
+def colour_choice(
+    args: argparse.Namespace, topics: TopicChoice, output: OutputOptions
+) -> tuple[TopicChoice, OutputOptions]:
+    """The colour camera's topics (--rgb, --rgb-info) and, from a Kalibr camchain with a cam2, its
+    calibration and its pose (rgb_in_left, unless --set gives it)."""
+    topics = dataclasses.replace(topics, rgb=getattr(args, "rgb", None), rgb_info=getattr(args, "rgb_info", None))
+    path = getattr(args, "camera_info", None)
+    colour = read_camchain_colour(path) if path is not None and is_camchain(path) else None
+    if colour is None:
+        return topics, output
+    info, pose = colour
+    if not output.rgb_in_left.is_set:
+        output = dataclasses.replace(output, rgb_in_left=pose)
+    return dataclasses.replace(topics, rgb_calibration=info), output
 
 
 def interrupt_on_sigterm() -> None:

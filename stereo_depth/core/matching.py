@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import cv2
 import numpy as np
@@ -19,6 +19,9 @@ from stereo_depth.core.params import StereoParams
 from stereo_depth.core.speckles import SplitSpeckleFilter
 from stereo_depth.core.threads import opencv_threads, other_core
 
+if TYPE_CHECKING:
+    from stereo_depth.core.too_near import CoarseSearch
+
 
 @dataclass
 class MatchResult:
@@ -26,6 +29,7 @@ class MatchResult:
     confidence: np.ndarray | None = None
     excluded: np.ndarray | None = None  # bool: invalidated by a detector; no filter may refill these
     too_near: np.ndarray | None = None  # bool: nearer than the disparity range can see (core/too_near.py)
+    coarse: CoarseSearch | None = None  # too-near detection's coarse search, at its own size
 
 
 class Matcher(Protocol):

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stereo_depth.core.option_fields import coerce, coerced, option, option_names, range_problems
+from stereo_depth.core.spatial import SpatialSettings
 from stereo_depth.core.temporal import TemporalSettings
 from stereo_depth.errors import ParameterError
 
@@ -134,6 +135,43 @@ class StereoParams:
         100.0,
     )
 
+    # Glare and the spatial filter (core/saturation.py, core/spatial.py)
+    invalidate_saturated: bool = option(
+        True,
+        "No disparity, depth or points where either image is saturated without texture (a window, a lamp, "
+        "glare on a floor): 9x9 blocks of pixels at full scale (saturation_level) in every channel; any "
+        "match there is noise",
+    )
+    saturation_level: int = option(
+        0,
+        "Raw value at which a 16-bit camera's pixels saturate: 1023 for a 10-bit, 4095 for a 12-bit sensor "
+        "(0 = 65535); 8-bit images saturate at 255. Judged on the camera's values, never the frame's peak",
+        0,
+        65535,
+        1,
+    )
+    spatial_filter: bool = option(
+        False,
+        "Replace wrong matches by their surface's value (image-guided median), then smooth the disparity "
+        "within each surface (edge-preserving domain transform, recursive, as RealSense's spatial filter): "
+        "never across a depth edge, never into or out of a hole",
+    )
+    spatial_alpha: float = option(
+        0.5, "Spatial filter: a pixel's own weight against its smoothed neighbour's (1 = no smoothing)", 0.05, 1.0
+    )
+    spatial_delta: float = option(
+        2.0, "Spatial filter: a step between neighbours larger than this many px is a depth edge", 0.0, 64.0
+    )
+    spatial_iterations: int = option(2, "Spatial filter: passes over the image (a wider reach)", 1, 5, 1)
+    spatial_outlier_radius: int = option(
+        3,
+        "Spatial filter: first a wrong match takes the median of the valid disparities within this many px, "
+        "weighted by likeness in the image, so that a thin structure the image shows stays (0 = off)",
+        0,
+        5,
+        1,
+    )
+
     @property
     def temporal(self) -> TemporalSettings:
         return TemporalSettings(
@@ -144,6 +182,12 @@ class StereoParams:
             self.temporal_motion_reset,
             self.temporal_presence,
             self.temporal_ego_motion,
+        )
+
+    @property
+    def spatial(self) -> SpatialSettings:
+        return SpatialSettings(
+            self.spatial_alpha, self.spatial_delta, self.spatial_iterations, self.spatial_outlier_radius
         )
 
     def validate(self) -> StereoParams:
@@ -258,6 +302,7 @@ _STEREO_IMAGE_PROC: dict[str, Any] = {
     "P2": 400.0,
     "sgbm_mode": 0,
     "near_detection": False,  # stereo_image_proc outputs too-near pixels as whatever the matcher gave
+    "invalidate_saturated": False,
 }
 
 # The dataclass defaults are the recommended profile (semi-global, 3-way, small window, LR check).

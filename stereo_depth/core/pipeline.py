@@ -19,12 +19,15 @@ import numpy as np
 from stereo_depth.core.block_matching import compile_kernels as compile_bm_kernels
 from stereo_depth.core.block_matching import use_our_bm
 from stereo_depth.core.camera import CameraInfo, StereoCamera
-from stereo_depth.core.filters import apply_confidence_threshold, fill_holes
+from stereo_depth.core.filters import apply_confidence_threshold
 from stereo_depth.core.geometry import Rays, depth_to_points, disparity_to_depth
 from stereo_depth.core.match_checks import MatchChecks
 from stereo_depth.core.matching import Matcher, MatchResult, create_matcher, min_image_size
 from stereo_depth.core.memory import keep_freed_memory
 from stereo_depth.core.params import StereoParams, make_params
+from stereo_depth.core.saturation import invalidate_glare, rectified_glare
+from stereo_depth.core.spatial import compile_kernels as compile_spatial_kernels
+from stereo_depth.core.spatial import spatial_filter
 from stereo_depth.core.temporal import compile_kernels as compile_temporal_kernels
 from stereo_depth.errors import ImageError
 
@@ -43,6 +46,7 @@ class StereoResult:
     points: np.ndarray | None  # (H, W, 3) float32, NaN invalid
     timings_ms: dict[str, float] = field(default_factory=dict)
     too_near: np.ndarray | None = None  # bool: nearer than the range can see (None: detection off)
+    glare: np.ndarray | None = None  # bool, the left image's saturated textureless area (core/saturation.py)
 
 
 def to_grey8(image: np.ndarray, scale: float) -> np.ndarray:
@@ -60,6 +64,14 @@ def _writable(image: np.ndarray) -> np.ndarray:
     on the first frame (the census core: a minute or two, while frames are dropped), which
     `stereo-depth compile` does not build."""
     return image if image.flags.writeable else image.copy()
+
+
+def _own_values(raw: np.ndarray, grey: np.ndarray, color: np.ndarray | None = None) -> np.ndarray | None:
+    """The rectified image at the camera's own values where the pipeline has it (8-bit grey: the matcher's
+    image; 8-bit colour: the rectified colour image), else None (`rectified_glare` rectifies the raw one)."""
+    if raw.dtype != np.uint8:
+        return None
+    return grey if raw.ndim == 2 else color
 
 
 def _grey_scale(left: np.ndarray, right: np.ndarray) -> float:
@@ -177,23 +189,33 @@ class StereoPipeline:
         match = matcher.compute(grey_small, grey_r_small)
         checks.apply(match, grey_small, grey_r_small)  # confidence, too-near pixels
         t2 = time.perf_counter()
+        shape, raw_camera = grey_small.shape, None if rectified else camera
         if match.confidence is not None and params.confidence_threshold > 0:
             apply_confidence_threshold(match, params.confidence_threshold)
-        if params.fill_holes:
-            match.disparity = fill_holes(
-                match.disparity, grey_small, radius=params.hole_fill_radius, keep_invalid=match.excluded
+        glare = rectified_glare(
+            left, _own_values(left, grey_l, color), raw_camera, "left", shape, params.saturation_level
+        )
+        if params.invalidate_saturated:
+            right_glare = rectified_glare(
+                right, _own_values(right, grey_r), raw_camera, "right", shape, params.saturation_level
             )
+            invalidate_glare(match, glare, right_glare)
+        if params.fill_holes:
+            checks.fill(match, grey_small, params.hole_fill_radius)  # not over too-near pixels
+        if params.spatial_filter:
+            match.disparity = spatial_filter(match.disparity, params.spatial, grey_small)
         if factor > 1 and params.downsample_output == "processed":
             camera = self._shrunk(camera, factor) if camera is not None else None
             grey_l, grey_r = grey_small, grey_r_small
             color = _shrink_color(color, grey_small.shape) if color is not None else None
         elif factor > 1:
             _enlarge(match, grey_l.shape, factor)
+            glare = _enlarged_mask(glare, grey_l.shape) if glare is not None else None
         t3 = time.perf_counter()
         timings = {"rectify": (t1 - t0) * 1000.0, "match": (t2 - t1) * 1000.0, "filter": (t3 - t2) * 1000.0}
-        result = StereoResult(camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings)
-        result.too_near = match.too_near
-        return result
+        return StereoResult(
+            camera, grey_l, grey_r, color, match.disparity, match.confidence, None, None, timings, match.too_near, glare
+        )
 
     def _matcher(self) -> tuple[StereoParams, Matcher, MatchChecks]:
         """The current parameters, with this thread's matcher for them and what follows it."""
@@ -243,12 +265,14 @@ class CensusCoreLoad(NamedTuple):
 def warm_up_kernels(params: StereoParams | None) -> CensusCoreLoad | None:
     """Every numba kernel a stream of these parameters runs, compiled or loaded from numba's cache now,
     before its first input, rather than on the first frame, which would wait for them (a node drops the
-    frames arriving meanwhile): the temporal filter's, the census core's (about a second from the cache,
+    frames arriving meanwhile): the temporal and spatial filters', the census core's (about a second from the cache,
     one to two minutes on the first start after installing) and our BM's for this disparity count. A
     matcher switched to at run time still loads on its first frame. Returns the census core's load, or
     None when these parameters do not use it."""
     if params is not None and params.temporal_filter:
         compile_temporal_kernels()
+    if params is not None and params.spatial_filter:
+        compile_spatial_kernels()
     census = None
     if params is not None and params.matcher == "census_sgm":
         from stereo_depth.core.census_sgm import compile_kernels as load_census_core  # numba: census streams only
@@ -329,6 +353,10 @@ def _enlarge(match: MatchResult, shape: tuple[int, ...], factor: int) -> None:
     if match.confidence is not None:
         match.confidence = cv2.resize(match.confidence, size, interpolation=cv2.INTER_NEAREST)
     if match.excluded is not None:
-        match.excluded = cv2.resize(match.excluded.view(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        match.excluded = _enlarged_mask(match.excluded, shape)
     if match.too_near is not None:
-        match.too_near = cv2.resize(match.too_near.view(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        match.too_near = _enlarged_mask(match.too_near, shape)
+
+
+def _enlarged_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    return cv2.resize(mask.view(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0

@@ -243,13 +243,14 @@ class Geometry(NamedTuple):
     at_min_disparity: np.ndarray | None = None  # matched at the smallest disparity searched (points2_clearing)
     too_near: np.ndarray | None = None  # nearer than the disparity range can see (near_points)
     nearest_depth: float = 0.0  # metres: the nearest depth the disparity range can see
+    glare: np.ndarray | None = None  # the left image's saturated textureless area (core/saturation.py)
 
 
 def result_geometry(pipeline: StereoPipeline, frame: StereoFrame, result: StereoResult) -> Geometry:
     """Depth of a `match` result, its disparity as matched."""
     assert result.camera is not None
     image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
-    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image, result.too_near)
+    return disparity_geometry(pipeline, frame, result.camera, result.disparity, image, result.too_near, result.glare)
 
 
 def disparity_geometry(
@@ -259,10 +260,11 @@ def disparity_geometry(
     disparity: np.ndarray,
     image: np.ndarray,
     too_near: np.ndarray | None = None,
+    glare: np.ndarray | None = None,
 ) -> Geometry:
     """Depth of a frame's disparity (not offset-adjusted, at the size of `camera`); the pixels matched at
-    the smallest disparity searched are marked for points2_clearing, those too near for the range for
-    `near_points`."""
+    the smallest disparity searched are marked for points2_clearing, and so is the glare they hold back;
+    those too near for the range for `near_points`."""
     depth = disparity_to_depth(disparity, camera)
     params = pipeline.params
     step = 1 if params.downsample_output == "processed" else params.downsample  # one matcher step, output px
@@ -270,7 +272,7 @@ def disparity_geometry(
         saturated = disparity < np.float32(output_params(params).min_disparity + step)
     nearest = nearest_matchable_depth(params, camera)
     rays = pipeline.rays_for(camera)
-    return Geometry(depth, camera, rays, image, frame.camera, saturated, too_near, nearest)
+    return Geometry(depth, camera, rays, image, frame.camera, saturated, too_near, nearest, glare)
 
 
 def nearest_matchable_depth(params: StereoParams, camera: StereoCamera) -> float:
@@ -297,8 +299,10 @@ def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedM
     """The depth of points2_clearing (NaN elsewhere): pixels matched beyond max_depth or at the smallest
     disparity searched (as far as the matcher sees, or farther: their depth may be infinite), each at
     its depth clamped to clearing_max_depth. Such pixels never reach depth or points2 when beyond
-    max_depth; the mask and min_depth still hold them back, and so does glare (`near_saturation`). Call
-    before `limited_depth`."""
+    max_depth; the mask and min_depth still hold them back, and so does glare: white without texture, a
+    matcher's disparity there is arbitrary (SGBM puts 2,700-3,600 pixels of each bundled EuRoC frame, a
+    room, at the smallest disparity, more than half of them in or beside glare), and a clearing ray from
+    one would clear real obstacles along it. Call before `limited_depth`."""
     depth = geometry.depth
     with np.errstate(invalid="ignore"):
         far = depth > np.float32(options.max_depth) if options.max_depth > 0 else np.zeros(depth.shape, bool)
@@ -306,22 +310,13 @@ def clearing_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedM
             far |= geometry.at_min_disparity
         if options.min_depth > 0:
             far &= ~(depth < np.float32(options.min_depth))
-    far &= ~near_saturation(geometry.image)
+    if geometry.glare is not None:
+        far &= ~geometry.glare
     if options.mask_image:
         far &= masks.get(options.mask_image, geometry.raw_camera, depth.shape)
     clearing = np.full(depth.shape, np.nan, np.float32)
     clearing[far] = np.fmin(depth[far], np.float32(options.clearing_max_depth))  # fmin: infinite (NaN) -> the limit
     return clearing
-
-
-def near_saturation(image: np.ndarray) -> np.ndarray:
-    """Pixels within one pixel of a saturated one (any channel at the type's maximum) in the rectified
-    left image. Glare is white without texture, so a matcher's disparity there is arbitrary: SGBM puts
-    2,700-3,600 pixels of each bundled EuRoC frame (a room) at the smallest disparity, more than half of
-    them in or beside glare. A clearing ray from one would clear real obstacles along it, so none is cast."""
-    top = np.iinfo(image.dtype).max
-    saturated = (image >= top) if image.ndim == 2 else (image >= top).any(axis=2)
-    return cv2.dilate(saturated.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
 def limited_depth(geometry: Geometry, options: OutputOptions, masks: RectifiedMasks) -> np.ndarray:

@@ -8,7 +8,9 @@ and publish or write what it returns, so live and offline outputs agree by const
   output is due, and whether the calibration changed. A node matching several frames at once calls its
   two halves, `matched` (any thread) and `outputs` (in input order), instead.
 - `CloudJob.run()`: depth, the depth limits and mask, and the messages of depth (depth, its camera_info and
-  compressedDepth, points2, points2_clearing); a node runs it on its second thread.
+  compressedDepth, points2, points2_clearing); a node runs it on its second thread. With `rgb_in_left` set
+  it hands the frame's depth to `registration` (frames/registered.py) and returns the registered jobs
+  that became due: colour images paired with a frame, each to run once.
 
 The stages run in this one order in this one place; each returns its own output (the core's StereoResult
 stays as the matcher gave it). Nothing here calls back into its caller.
@@ -39,6 +41,7 @@ from stereo_depth.frames.outputs import (
     image_outputs,
     limited_depth,
 )
+from stereo_depth.frames.registered import COLOUR_NAMES, ColourNames, FrameDepth, RegisteredJob, Registration
 from stereo_depth.messages import MessageTypes, disparity_from_msg
 from stereo_depth.options import OutputOptions
 from stereo_depth.sync import StereoSet
@@ -61,6 +64,7 @@ class CloudOutputs(NamedTuple):
     messages: dict[str, Any]
     stage_ms: dict[str, float]
     geometry: Geometry | None = None
+    registered: tuple[RegisteredJob, ...] = ()  # colour images this frame's depth decided (rgb_in_left)
 
 
 class CloudJob:
@@ -80,8 +84,10 @@ class CloudJob:
         offset_adjusted: bool = False,
         with_geometry: bool = False,
         too_near: np.ndarray | None = None,
+        glare: np.ndarray | None = None,
     ) -> None:
-        self._stream, self.frame, self._camera, self._too_near = stream, frame, camera, too_near
+        self._stream, self.frame, self._camera = stream, frame, camera
+        self._too_near, self._glare = too_near, glare
         self._disparity, self._image, self._output = disparity, image, output
         self.wanted, self._offset_adjusted, self._with_geometry = frozenset(wanted), offset_adjusted, with_geometry
 
@@ -93,16 +99,21 @@ class CloudJob:
             geometry = Geometry(depth, camera, stream.pipeline.rays_for(camera), self._image, camera)
         else:
             geometry = disparity_geometry(
-                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near
+                stream.pipeline, self.frame, camera, self._disparity, self._image, self._too_near, self._glare
             )
         depth_ms = (time.perf_counter() - start) * 1000.0
         start = time.perf_counter()
         messages = geometry_outputs(stream.types, self.frame.header, geometry, self._output, self.wanted, stream.state)
         points_ms = (time.perf_counter() - start) * 1000.0
-        if not self._with_geometry:
-            return CloudOutputs(messages, {"depth": depth_ms, "points": points_ms})
+        stage_ms = {"depth": depth_ms, "points": points_ms}
+        registering = self._output.rgb_in_left.is_set and not self._offset_adjusted
+        if not (self._with_geometry or registering):
+            return CloudOutputs(messages, stage_ms)
         limited = geometry._replace(depth=limited_depth(geometry, self._output, stream.state.masks))
-        return CloudOutputs(messages, {"depth": depth_ms, "points": points_ms}, limited)
+        registered: tuple[RegisteredJob, ...] = ()
+        if registering:
+            registered = tuple(stream.registration.add_depth(self.frame.stamp_ns, FrameDepth(limited, self._output)))
+        return CloudOutputs(messages, stage_ms, limited if self._with_geometry else None, registered)
 
 
 class FrameOutputs(NamedTuple):
@@ -139,8 +150,10 @@ class FrameStream:
         *,
         rectified: bool = False,
         names: InputNames = INPUT_NAMES,
+        colour_names: ColourNames = COLOUR_NAMES,
     ) -> None:
         self.types, self.rectified, self.names = types, rectified, names
+        self.registration = Registration(types, colour_names)  # fed colour images by the caller (rgb_in_left)
         self.pipeline = StereoPipeline(params)
         self.output = output or OutputOptions()
         self.state = OutputState()
@@ -180,7 +193,7 @@ class FrameStream:
         cloud = None
         if frame.camera.no_depth_reason is None:  # no baseline: disparity only (the caller warns once)
             due = self.state.cloud_rate.wanted([n for n in GEOMETRY_OUTPUTS if n in wanted], frame.stamp_ns, output)
-            if due or with_geometry:
+            if due or with_geometry or output.rgb_in_left.is_set:
                 assert result.camera is not None  # match_frame passes the frame's camera
                 image = result.left_rect_color if result.left_rect_color is not None else result.left_rect
                 cloud = CloudJob(
@@ -193,6 +206,7 @@ class FrameStream:
                     due,
                     with_geometry=with_geometry,
                     too_near=result.too_near,
+                    glare=result.glare,
                 )
         changed = self._calibration_changed(frame.camera)
         return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms)

@@ -22,6 +22,7 @@ from stereo_depth.options import (
     CLOUD_OPTIONS,
     DRIVER_FIX_OPTIONS,
     INPUT_OPTIONS,
+    REGISTRATION_OPTIONS,
 )
 from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
@@ -39,6 +40,11 @@ OUTPUT_TYPES = {
     "depth/compressedDepth": CompressedImage,
     "points2": PointCloud2,
     "points2_clearing": PointCloud2,
+    # with rgb_in_left set only: depth registered to the colour camera (frames/registered.py)
+    "depth_registered/image_rect": Image,
+    "depth_registered/camera_info": CameraInfo,
+    "rgb/image_rect_color": Image,
+    "depth_registered/points": PointCloud2,
 }
 # the publish_* parameter that switches each output on or off
 SWITCHES = {
@@ -68,6 +74,7 @@ class StereoNode(MatchingNode):
         *CLOUD_OPTIONS,
         "depth_encoding",
         "clearing_max_depth",
+        "near_points",
         "compressed_depth_format",
         "compressed_depth_max_depth",
         "compressed_depth_quantization",
@@ -82,6 +89,7 @@ class StereoNode(MatchingNode):
         "calibration_check_every_n_frames",
         "matching_threads",
         "cpu_threads",
+        *REGISTRATION_OPTIONS,
     )
     MAX_FRAMES_AT_ONCE = 4
     OUTPUTS = tuple(OUTPUT_TYPES.items())

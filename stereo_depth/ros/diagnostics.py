@@ -94,6 +94,7 @@ class NodeDiagnostics:
         self.stale = 0  # messages whose stamp repeated or went back a little (dropped)
         self.time_jumps = 0  # stamps went back by more than the synchronizer's jump: pairing restarted
         self.calibrations = 0  # calibrations loaded (rectification maps built); grows only on a change
+        self.without_colour: int | None = None  # frames no colour image paired with (None: not registering)
         self._too_near: deque[float] = deque(maxlen=RECENT_FRAMES)  # share of each frame's pixels
         self._nearest_depth = float("nan")  # metres: the nearest depth the disparity range can see
 
@@ -109,19 +110,30 @@ class NodeDiagnostics:
         with self._lock:
             self._in_dds_ms.setdefault(topic, deque(maxlen=RECENT_FRAMES)).append(ms)
 
-    def sync_changed(self, change: SyncCounters) -> None:
-        """What one message did to the synchronizer (`SyncCounters.since`), per input topic."""
+    def sync_changed(self, change: SyncCounters, topics: list[str] | None = None) -> None:
+        """What one message did to a synchronizer (`SyncCounters.since`), per input topic: `topics`, its
+        inputs (None: the node's first inputs, the stereo set's)."""
         with self._lock:
             self.stale += change.stale
             self.time_jumps += change.time_jumps
             self.unmatched += change.dropped + change.stale
             self.calibration_unknown += change.calibration_unknown
+            monitors = [self.inputs[t] for t in topics] if topics is not None else list(self.inputs.values())
             for monitor, dropped, substituted, late in zip(
-                self.inputs.values(), change.dropped_by_input, change.substituted, change.late, strict=True
+                monitors[: len(change.dropped_by_input)],
+                change.dropped_by_input,
+                change.substituted,
+                change.late,
+                strict=True,
             ):
                 monitor.unmatched += dropped
                 monitor.substituted += substituted
                 monitor.late += late
+
+    def registration(self, without_colour: int) -> None:
+        """Registered outputs: the stereo frames that no colour image paired with, so far."""
+        with self._lock:
+            self.without_colour = without_colour
 
     def calibrations_loaded(self, count: int) -> None:
         with self._lock:
@@ -278,6 +290,8 @@ class NodeDiagnostics:
         values.append(("stale or repeated stamps", str(self.stale)))
         values.append(("time jumps (pairing restarted)", str(self.time_jumps)))
         values.append(("calibrations loaded", str(self.calibrations)))
+        if self.without_colour is not None:
+            values.append(("frames without a colour image (registered outputs)", str(self.without_colour)))
         values.append(("silent inputs", self._silence(now) or "none"))
         values.append(("last error", self.last_error or "none"))
         return values

@@ -135,12 +135,14 @@ class InputPairing:
             for subscription in self.subscriptions:
                 subscription.configure(new.reliability, new.queue_size)
 
-    def flush_when_idle(self) -> None:
+    def flush_when_idle(self) -> bool:
         """The stream paused: a set that waits only for its camera_info goes out with the last one, as at
-        the end of a bag, instead of waiting for the next frame."""
+        the end of a bag, instead of waiting for the next frame. True when it flushed now."""
         if self._last_input_s and time.monotonic() - self._last_input_s > IDLE_FLUSH_S:
             self._last_input_s = 0.0
             self._pair(Synchronizer.flush, "", 0)
+            return True
+        return False
 
     def _new_sync(self, options: NodeOptions) -> Synchronizer:
         return Synchronizer(
@@ -208,7 +210,7 @@ class InputPairing:
             sets = step(self._sync)
             change = self._sync.counters.since(before)
             received = [self._receipts.pop(stamp_ns, time.monotonic()) for stamp_ns, _ in sets]
-        self.diagnostics.sync_changed(change)
+        self.diagnostics.sync_changed(change, self.topics)
         if change.stale:
             self.problems.skipped(
                 f"{topic}: stamp {stamp / 1e9:.6f} s is not newer than the last paired set (repeated, or "

@@ -9,12 +9,17 @@ disparity goes out without waiting for the cloud, and a frame costs the longer o
 of their sum. The second stage queues like the first (latest_worker.py: fewer waiting places as it falls
 behind, the newest only under overload, `max_latency_ms` honoured); a disparity whose cloud it drops is
 counted ("dropped clouds" in diagnostics).
+
+With rgb_in_left set (stereo_node), the node also reads a colour camera (ros/colour_input.py) and the
+second stage registers each frame's depth to the colour images paired with it (frames/registered.py),
+after the frame's own outputs went out; the four registered outputs exist only then.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any, NamedTuple
@@ -24,12 +29,15 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from stereo_depth.core.calibration_check import check_rectified_pair
 from stereo_depth.core.pipeline import StereoResult, warm_up_kernels
+from stereo_depth.core.registration import compile_registration_kernels
 from stereo_depth.core.threads import use_threads
 from stereo_depth.frames import GEOMETRY_OUTPUTS, CloudJob
 from stereo_depth.frames.outputs import nearest_matchable_depth
+from stereo_depth.frames.registered import REGISTERED_OUTPUTS, ColourNames, RegisteredJob, unset_pose_line
 from stereo_depth.messages import RVL_FALLBACK_NOTE, compressed_depth_codec
 from stereo_depth.options import NodeOptions, Settings
 from stereo_depth.ros import signals
+from stereo_depth.ros.colour_input import ColourInputs
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.node_base import FrameJob
 from stereo_depth.ros.stream_node import StreamNode
@@ -56,6 +64,13 @@ class CloudTask(NamedTuple):
     stage_ms: dict[str, float]  # the first stage's
 
 
+class RegisteredTask(NamedTuple):
+    """Colour images paired when the stereo inputs paused (no frame of their own to go with)."""
+
+    jobs: Sequence[RegisteredJob]
+    received_s: float
+
+
 class MatchingNode(StreamNode):
     """A subclass names its inputs, options and outputs; this class does the rest."""
 
@@ -68,7 +83,84 @@ class MatchingNode(StreamNode):
         self._frames = 0
         self._order_lock = threading.Lock()
         self._published = 0  # sequence number of the newest set whose outputs went out
+        self._colour: ColourInputs | None = None  # from configure to cleanup, with rgb_in_left set
         super().__init__(name, **kwargs)
+
+    # ------------------------------------------------------------ registered depth (rgb_in_left)
+
+    @property
+    def registering(self) -> bool:
+        return "rgb_in_left" in self.OPTIONS and self.parameters.settings.output.rgb_in_left.is_set
+
+    def output_names(self) -> list[str]:
+        names = super().output_names()
+        return names if self.registering else [name for name in names if name not in REGISTERED_OUTPUTS]
+
+    def configure_io(self) -> None:
+        if self.registering:
+            self._colour = ColourInputs(self, self.parameters.settings.options)
+            self.extra_topics = self._colour.names
+        super().configure_io()
+        if self._colour is not None:  # errors about the colour inputs name their topics
+            self.stream.registration.names = ColourNames(*self._colour.names)
+
+    def open_extra_inputs(self) -> None:
+        if self._colour is not None:
+            self._colour.open(
+                self.parameters.settings.options,
+                self.diagnostics,
+                self.problems,
+                self.stream.registration.add_colour,
+                self.report_bug,
+            )
+            self._io_timers.append(self.create_timer(1.0, self._colour.flush_when_idle))
+
+    def deactivate_io(self) -> None:
+        if self._colour is not None:
+            self._colour.close()
+        super().deactivate_io()
+
+    def cleanup_io(self) -> None:
+        super().cleanup_io()
+        self._colour, self.extra_topics = None, []
+
+    @property
+    def subscriptions_held(self) -> int:
+        return super().subscriptions_held + (len(self._colour.subscriptions) if self._colour is not None else 0)
+
+    def inputs_paused(self) -> None:
+        """No frame will come to decide the colour images still waiting: they pair with the frames seen."""
+        jobs = self.stream.registration.flush()
+        if jobs and self._cloud_stage is not None:
+            self._cloud_stage.submit(RegisteredTask(jobs, time.monotonic()))
+
+    def _publish_registered(self, jobs: Sequence[RegisteredJob], received_s: float) -> None:
+        """The registered outputs someone listens to, of each colour image paired; a bad colour input costs
+        only these (one line naming its topic)."""
+        self.diagnostics.registration(self.stream.registration.counters.unpaired_primary)
+        wanted = [
+            name
+            for name in REGISTERED_OUTPUTS
+            if name in self._output_publishers and self._output_publishers[name].get_subscription_count() > 0
+        ]
+        for job in jobs if wanted else ():
+            self.guarded(lambda job=job: self.publish_outputs(job.run(wanted)[0], {}, received_s))  # type: ignore[misc]
+
+    def _recheck_qos(self, everything: bool) -> None:
+        super()._recheck_qos(everything)
+        for subscription in self._colour.subscriptions if self._colour is not None else ():
+            subscription.check(everything=everything)
+
+    def _publish_diagnostics(self) -> None:
+        """Also: a registered output subscribed while rgb_in_left is unset (the node has none) gets one
+        throttled line naming the parameter."""
+        super()._publish_diagnostics()
+        if "rgb_in_left" in self.OPTIONS and not self.registering:
+            asked = [name for name in REGISTERED_OUTPUTS if self.count_subscribers(self.resolve_topic_name(name))]
+            if asked:
+                self.problems.warn(unset_pose_line(asked), ("rgb_in_left unset",))
+
+    # ------------------------------------------------------------ matching
 
     def frames_at_once(self, settings: Settings) -> int:
         return settings.options.matching_threads if "matching_threads" in self.OPTIONS else 1
@@ -99,6 +191,8 @@ class MatchingNode(StreamNode):
                     "one to two minutes; `stereo-depth compile` does that ahead)"
                 )
             census = warm_up_kernels(settings.stereo)
+            if self.registering:
+                compile_registration_kernels()
             if census is not None:
                 self.get_logger().info(f"census_sgm core ready in {census.seconds:.1f} s (numba cache: {census.cache})")
 
@@ -154,15 +248,23 @@ class MatchingNode(StreamNode):
             self._published = sequence
             yield True
 
-    def _run_cloud(self, task: CloudTask) -> None:
+    def _run_cloud(self, task: CloudTask | RegisteredTask) -> None:
+        if isinstance(task, RegisteredTask):
+            self._publish_registered(task.jobs, task.received_s)
+            return
+        registered: list[RegisteredJob] = []
+
         def work() -> None:
             cloud = task.job.run()
+            registered.extend(cloud.registered)
             stages = task.stage_ms
             self.publish_outputs(cloud.messages, stages, task.received_s)
             self._note_compressed_depth_fallback(cloud.messages.get("depth/compressedDepth"))
             self.finish_frame(task.stamp_ns, {**cloud.stage_ms, **stages})
 
         self.guarded(work)
+        if self.registering:
+            self._publish_registered(registered, task.received_s)
 
     def _note_compressed_depth_fallback(self, compressed: Any) -> None:
         """One log line the first time rvl sends a frame as PNG (image_transport's decoder refuses its stream)."""
@@ -171,7 +273,10 @@ class MatchingNode(StreamNode):
             self.get_logger().info(RVL_FALLBACK_NOTE, once=True)
 
     def _settings_changed(self, settings: Settings) -> None:
+        old = self._options
         super()._settings_changed(settings)
+        if self._colour is not None:
+            self._colour.options_changed(old, settings.options)
         if self._cloud_stage is not None:  # None while a lifecycle node is not active
             self._cloud_stage.capacity = settings.options.max_waiting_frames
             self._cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0

@@ -88,6 +88,7 @@ class StereoIONode(Node):
         self._options = self.parameters.settings.options
         self._spec = InputSpec(self.INPUTS, self.CALIBRATIONS, self.IMAGE_INPUTS, self.CAMERA_INFO_FILES)
         self.topics: list[str] = []
+        self.extra_topics: list[str] = []  # inputs paired apart from the stereo set (a colour camera), set at configure
         self._new_diagnostics()
         self._outputs: list[Publisher] = []
         self._watches: list[SubscriberWatch] = []  # one per output: its incompatible-QoS warnings
@@ -140,11 +141,23 @@ class StereoIONode(Node):
         self._io_timers = [
             self.create_timer(1.0, self._publish_diagnostics),
             self.create_timer(QOS_RECHECK_S, partial(self._recheck_qos, False)),
-            self.create_timer(1.0, self._pairing.flush_when_idle),
+            self.create_timer(1.0, self._flush_when_idle),
             self.create_timer(QOS_FULL_RECHECK_S, partial(self._recheck_qos, True)),
         ]
+        self.open_extra_inputs()
         self._warn_unused_overrides()
-        self.get_logger().info(f"ready: inputs {', '.join(self.topics)}")
+        self.get_logger().info(f"ready: inputs {', '.join([*self.topics, *self.extra_topics])}")
+
+    def _flush_when_idle(self) -> None:
+        if self._pairing is not None and self._pairing.flush_when_idle():
+            self.inputs_paused()
+
+    def open_extra_inputs(self) -> None:
+        """At activate, after the stereo inputs: a subclass subscribes the inputs it pairs apart
+        (`extra_topics`, a colour camera), closing them in `deactivate_io`."""
+
+    def inputs_paused(self) -> None:
+        """The stereo inputs paused (IDLE_FLUSH_S without a message): a subclass gives up waiting for them."""
 
     def deactivate_io(self) -> None:
         """Unsubscribe, let the running frame finish, end the workers; half-paired sets are dropped."""
@@ -170,7 +183,7 @@ class StereoIONode(Node):
 
     def _new_diagnostics(self) -> None:
         """Fresh counters at each activation: a re-activated node reports nothing from before its pause."""
-        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), self.topics)
+        self.diagnostics = NodeDiagnostics(self.get_fully_qualified_name(), [*self.topics, *self.extra_topics])
         self.problems = ProblemLog(self.get_logger(), self.diagnostics)
 
     def _warn_unused_overrides(self) -> None:

@@ -39,7 +39,11 @@ class StreamNode(StereoIONode):
         )
         self.configured, self._calibrations = True, 0
         # the stream's buffers are reused frame to frame: publish() serializes first
-        self._output_publishers = {name: self.declared_output(name) for name, _ in self.OUTPUTS}
+        self._output_publishers = {name: self.declared_output(name) for name in self.output_names()}
+
+    def output_names(self) -> list[str]:
+        """The outputs this node publishes with its settings: all of OUTPUTS unless a subclass says less."""
+        return [name for name, _ in self.OUTPUTS]
 
     def cleanup_io(self) -> None:
         super().cleanup_io()
