@@ -48,8 +48,17 @@ CPU_LOCK = Path("/tmp/stereo_depth_cpu.lock")
 GLANCE_BEGIN = "<!-- performance-at-a-glance:begin -->"
 GLANCE_END = "<!-- performance-at-a-glance:end -->"
 BUNDLED_SCENES = tuple(f"test/data/scenes/{name}" for name in ("artl", "cones", "tsukuba"))
-# the temporal filter's longer sequences, from --data
-TEMPORAL_DATA_SCENES = ("middlebury2006/aloe", "middlebury2006/baby1", "middlebury2003/teddy")
+# the temporal filter's longer sequences, from --data: scenes with ground truth, and real static recordings
+TEMPORAL_DATA_SCENES = (
+    "middlebury2006/aloe",
+    "middlebury2006/baby1",
+    "middlebury2003/teddy",
+    "middlebury2005/books",
+    "middlebury2006/rocks1",
+    "middlebury2006/bowling2",
+    "middlebury2001/venus",
+)
+TEMPORAL_RECORDINGS = "static_recordings"  # bench/README.md says how to build it
 
 
 class RowsLeftOutError(Exception):
@@ -172,13 +181,21 @@ compressed_input = repeated("compressed_input.py", "--repeat", full="10", quick=
 
 
 def temporal(run: Run) -> bool:
-    scenes = list(BUNDLED_SCENES)
+    scenes, recordings = list(BUNDLED_SCENES), []
     if run.args.data is None:
-        run.notes.append("Left out: the rows of " + ", ".join(TEMPORAL_DATA_SCENES) + " (needs `--data DIR`).")
+        run.notes.append(
+            "Left out: the rows of "
+            + ", ".join(TEMPORAL_DATA_SCENES)
+            + " and the static recordings (needs `--data DIR`)."
+        )
     else:
         scenes += [str(run.args.data / name) for name in TEMPORAL_DATA_SCENES if (run.args.data / name).is_dir()]
-    sizes = {"full": ("--frames", "20", "--warm-up", "6"), "quick": ("--frames", "12", "--warm-up", "4")}
-    return run.bench("temporal.py", "--scenes", *scenes, **sizes)
+        if (run.args.data / TEMPORAL_RECORDINGS).is_dir():
+            recordings = ["--data", str(run.args.data / TEMPORAL_RECORDINGS)]
+        else:
+            run.notes.append(f"Left out: the static recordings (no `{TEMPORAL_RECORDINGS}/` in `--data`).")
+    sizes = {"full": ("--frames", "30", "--warm-up", "8"), "quick": ("--frames", "12", "--warm-up", "4")}
+    return run.bench("temporal.py", "--scenes", *scenes, *recordings, **sizes)
 
 
 def fleet(run: Run) -> bool:

@@ -1,4 +1,4 @@
-"""Depth over time: flicker, ghost points and trails with and without the temporal filter.
+"""Depth over time: flicker, ghost points, sporadic points and trails with and without the temporal filter.
 
 Three kinds of sequence, each through the profile's pipeline and then `TemporalFilter` (what
 `temporal_filter: true` runs, live and in `process`):
@@ -7,16 +7,24 @@ Three kinds of sequence, each through the profile's pipeline and then `TemporalF
   read/shot noise and a per-frame gain jitter per camera, as an auto-exposed camera shows);
 - moving: a textured patch (cut from another real scene) at a known disparity in front of a real
   scene, moving sideways, then gone: how long its trail stays, and how much of it is seen while it moves;
-- euroc: the bundled EuRoC frames (a real moving camera, raw and distorted; no ground truth).
+- pitching: the rig turning about its baseline (plus and minus 2 degrees, 1.2 s period, 30 Hz), an exact
+  homography of both rectified images of a real scene and of its ground truth, with fresh noise; no
+  odometry is given, so the filter has to see the motion itself (`--pitching N`: the first N scenes);
+- recorded: real static recordings (`--data DIR`: each folder in it a recording a real camera made
+  standing still; README.md says how to build them): real sensor noise, auto-exposure and the errors
+  that come back frame after frame; no ground truth.
 
-Per row: flicker (share of pixels whose valid / invalid state toggles between frames), temporal std of
-the disparity (px, pixels valid in two or more frames), ghost points (valid, more than 2 px from the
-ground truth, and lasting fewer than 3 frames; per frame, as a share of the pixels), bad-2 of
+Per row of the scenes: flicker (share of pixels whose valid / invalid state toggles between frames),
+temporal std of the disparity (px, pixels valid in two or more frames), ghost points (valid, more than 2 px
+from the ground truth, and lasting fewer than 3 frames; per frame, as a share of the pixels), bad-2 of
 estimated, density, and the filter's ms per frame (median wall time, with the threads stereo_node gives
-it: cpu_threads 0, this process's cores; the euroc rows are 752x480, more than VGA, and a VGA row
-times 640x480 crops of them). Metrics skip the first `--warm-up` frames.
+it: cpu_threads 0, this process's cores). Per recording: sporadic points (valid in fewer than 25 % of the
+scored frames; counted per frame), jumps (pixels valid in two consecutive frames whose disparity changes
+by more than 1 px; per frame) and density. A VGA row times the filter against the match on 640x480
+frames of a scene, in the same run. Metrics skip the first `--warm-up` frames.
 
-.venv/bin/python bench/temporal.py [--scenes DIR ...] [--frames 30] [--seed 1] [--set temporal_delta=1.0 ...]
+.venv/bin/python bench/temporal.py [--scenes DIR ...] [--data DIR] [--pitching 5] [--frames 30] [--seed 1]
+    [--set temporal_delta=1.0 ...]
 """
 
 from __future__ import annotations
@@ -31,12 +39,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereo_depth.bag.sources import read_frames
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.params import make_params
 from stereo_depth.core.pipeline import StereoPipeline
 from stereo_depth.core.temporal import TemporalFilter, TemporalSettings
 from stereo_depth.core.threads import use_threads
-from stereo_depth.formats.euroc import stereo_camera_infos
 from stereo_depth.formats.scenes import Scene, load_scene
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -44,10 +52,16 @@ from lib.table import parse_bench_arguments, table_header, table_row
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted((ROOT / "test/data/scenes").iterdir())
-EUROC = ROOT / "test/data/euroc"
 NOISE_SIGMA = 2.0  # grey levels: read + shot noise of a machine-vision camera in good light
 GAIN_JITTER = 0.01  # per frame and camera: auto-exposure / gain steps
 FRAME_NS = 33_333_333  # 30 Hz
+SPORADIC_SHARE = 0.25  # a pixel valid in fewer than this share of the frames is a sporadic point
+JUMP_PX = 1.0  # a disparity change between consecutive frames larger than this is a jump
+VGA = (640, 480)
+VGA_FRAMES = 24
+PITCH_DEGREES = 2.0  # the pitching rig: plus and minus this, about the baseline
+PITCH_PERIOD_S = 1.2
+PITCH_FRAMES = 72  # two periods at 30 Hz
 
 
 # ------------------------------------------------------------------------------------------ sequences
@@ -97,6 +111,35 @@ def moving_sequence(
         if scene.mask is not None:
             gt = np.where(scene.mask | (gt == d_obj), gt, np.nan)
         yield noisy(left, rng), noisy(right, rng), gt.astype(np.float32)
+
+
+def pitching_sequence(scene: Scene, frames: int, seed: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The rig pitching about its baseline (PITCH_DEGREES, PITCH_PERIOD_S, 30 Hz): a rotation about the
+    axis through both camera centres, so both rectified images move by the same homography H = K R K^-1
+    (K: focal length the image width, principal point the centre; any pinhole K is exact) and stay
+    rectified. The ground truth moves with them: a point's disparity scales by Z / Z' = 1 / (R^T K^-1 p)_z."""
+    rng = np.random.default_rng(seed)
+    assert scene.gt is not None
+    height, width = scene.gt.shape
+    f, cx, cy = float(width), (width - 1) / 2.0, (height - 1) / 2.0
+    k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    gt = np.where(scene.mask, scene.gt, np.nan) if scene.mask is not None else scene.gt
+    rows = (np.arange(height, dtype=np.float64)[:, None] - cy) / f
+    for index in range(frames):
+        angle = np.radians(PITCH_DEGREES) * np.sin(2.0 * np.pi * index * FRAME_NS * 1e-9 / PITCH_PERIOD_S)
+        c, s = np.cos(angle), np.sin(angle)
+        rotation = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        h = k @ rotation.T @ np.linalg.inv(k)
+        scaled = (gt / (c - s * rows)).astype(np.float32)  # the disparity each source pixel has after the turn
+        size = (width, height)
+        moved_gt = cv2.warpPerspective(
+            scaled, h, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")
+        )
+        left, right = (
+            cv2.warpPerspective(image, h, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            for image in (scene.left, scene.right)
+        )
+        yield noisy(left, rng), noisy(right, rng), moved_gt
 
 
 # ------------------------------------------------------------------------------------------ metrics
@@ -161,20 +204,35 @@ def run(
     camera: StereoCamera | None,
     warm_up: int,
 ) -> tuple[list[np.ndarray], list[np.ndarray], float]:
-    """Disparities (filtered when `settings`), ground truths and the filter's mean ms per frame."""
+    """Disparities (filtered when `settings`), ground truths and the filter's median ms per frame."""
+    outs, gts, filter_ms, _ = timed_run(pipeline, frames, settings, camera, warm_up)
+    return outs, gts, filter_ms
+
+
+def timed_run(
+    pipeline: StereoPipeline,
+    frames: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    settings: TemporalSettings | None,
+    camera: StereoCamera | None,
+    warm_up: int,
+) -> tuple[list[np.ndarray], list[np.ndarray], float, float]:
+    """`run`, and the match's median ms per frame (rectify and match, the stage the filter follows)."""
     temporal = TemporalFilter()
-    outs, gts, times = [], [], []
+    outs, gts, times, match_times = [], [], [], []
     for k, (left, right, gt) in enumerate(frames):
+        start = time.perf_counter()
         result = pipeline.match(left, right, camera, rectified=camera is None)
+        match_times.append((time.perf_counter() - start) * 1000.0)
         disparity = result.disparity
         if settings is not None:
             start = time.perf_counter()  # wall: the kernel runs on numba's threads
-            disparity = temporal.apply(disparity, result.confidence, k * FRAME_NS, 0, settings)
+            disparity = temporal.apply(disparity, result.confidence, k * FRAME_NS, 0, settings, view=result.left_rect)
             times.append((time.perf_counter() - start) * 1000.0)
         if k >= warm_up:
             outs.append(disparity)
             gts.append(gt)
-    return outs, gts, float(np.median(times)) if times else 0.0
+    median = lambda values: float(np.median(values)) if values else 0.0  # noqa: E731
+    return outs, gts, median(times), median(match_times)
 
 
 MARKDOWN_COLUMNS = (
@@ -228,10 +286,16 @@ def trail_frames(disparities: list[np.ndarray], gts: list[np.ndarray], vanish: i
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", type=Path, default=SCENES)
+    parser.add_argument(
+        "--data", type=Path, help="a folder of static recordings, one folder each (bench/README.md: how to build)"
+    )
     parser.add_argument("--profiles", nargs="+", default=["default", "quality"])
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--warm-up", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1, help="the static sequences' noise (a second seed: the spread)")
+    parser.add_argument(
+        "--pitching", type=int, default=5, metavar="N", help="the pitching rig on the first N scenes (0: none)"
+    )
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="temporal_* options")
     args = parse_bench_arguments(parser)
     values = dict(item.split("=", 1) for item in args.set)
@@ -277,61 +341,133 @@ def main() -> None:
                 f"moving: {np.mean(on_patch):.3f} of its pixels"
             )
         report(f"moving {scene.name}", profile, rows[0], rows[1], args.markdown)
-    euroc(args.profiles, settings, args.markdown)
+    pitching: dict[str, list[tuple[Row, Row]]] = {}
+    for profile in args.profiles:
+        for scene in scenes[: args.pitching]:
+            params = make_params(profile, {"disparity_range": scene.disparity_range()})
+            rows = []
+            for chosen in (None, settings):
+                frames = pitching_sequence(scene, PITCH_FRAMES, args.seed)
+                outs, gts, ms = run(StereoPipeline(params), frames, chosen, None, args.warm_up)
+                rows.append(metrics(outs, gts, ms))
+            report(f"pitching {scene.name}", profile, rows[0], rows[1], args.markdown)
+            pitching.setdefault(profile, []).append((rows[0], rows[1]))
+    for profile in args.profiles:
+        vga_cost(profile, settings, scenes[0], args.markdown)
+    recorded = recordings(args.data, args.profiles, settings, args.warm_up, args.markdown) if args.data else []
     print()
-    for profile, pairs in summary.items():
-        worst_flicker = max(on.flicker / max(off.flicker, 1e-9) for off, on in pairs)
-        worst_ghosts = max(on.ghosts / max(off.ghosts, 1e-9) for off, on in pairs)
-        worst_bad2 = max(on.bad2_est - off.bad2_est for off, on in pairs)
-        worst_density = min(on.density - off.density for off, on in pairs)
-        print(
-            f"static, {profile}, worst scene of {len(pairs)}: flicker on/off {worst_flicker:.3f}, ghosts on/off "
-            f"{worst_ghosts:.3f}, bad-2 of estimated on-off {worst_bad2:+.4f}, density on-off {worst_density:+.4f}"
-        )
+    for kind, worst in (("static", summary), ("pitching (no odometry)", pitching)):
+        for profile, pairs in worst.items():
+            print(worst_of(kind, profile, pairs))
     for note in notes:
         print(note)
+    for line in recorded:
+        print(line)
 
 
-def grey(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    assert image is not None, path
-    return image
+def worst_of(kind: str, profile: str, pairs: list[tuple[Row, Row]]) -> str:
+    """The summary line of one kind of sequence: each figure's worst scene, filter on against off."""
+    worst_flicker = max(on.flicker / max(off.flicker, 1e-9) for off, on in pairs)
+    worst_ghosts = max(on.ghosts / max(off.ghosts, 1e-9) for off, on in pairs)
+    worst_bad2 = max(on.bad2_est - off.bad2_est for off, on in pairs)
+    worst_density = min(on.density - off.density for off, on in pairs)
+    return (
+        f"{kind}, {profile}, worst scene of {len(pairs)}: flicker on/off {worst_flicker:.3f}, ghosts on/off "
+        f"{worst_ghosts:.3f}, bad-2 of estimated on-off {worst_bad2:+.4f}, density on-off {worst_density:+.4f}"
+    )
 
 
-VGA_REPEATS = 4  # the EuRoC frames, cropped, looped: 24 frames to time
-
-
-def euroc(profiles: list[str], settings: TemporalSettings, markdown: bool) -> None:
-    """The bundled EuRoC frames (raw, distorted, 752x480, 0.6 s apart): no ground truth, so flicker,
-    density and time only; then the filter's time on their rectified 640x480 (VGA) crops."""
-    left_info, right_info = stereo_camera_infos(EUROC / "cam0_sensor.yaml", EUROC / "cam1_sensor.yaml")
-    names = sorted(path.name for path in (EUROC / "left").glob("*.png"))
-    images = [(grey(EUROC / "left" / n), grey(EUROC / "right" / n)) for n in names]
-    for profile in profiles:
-        vga_ms(profile, settings, [(left[:, :640], right[:, :640]) for left, right in images], markdown)
-    for profile in profiles:
-        pipeline = StereoPipeline(make_params(profile))
-        camera = pipeline.camera_for(left_info, right_info)
-        rows = []
-        for chosen in (None, settings):
-            frames = ((left, right, np.zeros(left.shape, np.float32)) for left, right in images)
-            outs, _, ms = run(pipeline, frames, chosen, camera, 0)
-            rows.append(metrics(outs, None, ms))
-        report(f"EuRoC, {len(images)} frames 0.6 s apart", profile, rows[0], rows[1], markdown)
-
-
-def vga_ms(
-    profile: str, settings: TemporalSettings, images: list[tuple[np.ndarray, np.ndarray]], markdown: bool
-) -> None:
-    """The filter's ms per 640x480 frame (the issue's budget: 2 ms), on real disparities (and
-    confidences) of the profile's matcher; the pairs are matched as rectified."""
-    pipeline = StereoPipeline(make_params(profile))
-    frames = ((left, right, np.zeros(left.shape, np.float32)) for left, right in images * VGA_REPEATS)
-    _, _, ms = run(pipeline, frames, settings, None, 0)
+def vga_cost(profile: str, settings: TemporalSettings, scene: Scene, markdown: bool) -> None:
+    """The filter's and the match's ms per 640x480 frame, in the same run, on real disparities (and
+    confidences) of the profile's matcher: the scene scaled to VGA, with fresh noise every frame."""
+    assert scene.gt is not None
+    vga = dataclasses.replace(
+        scene,
+        left=cv2.resize(scene.left, VGA),
+        right=cv2.resize(scene.right, VGA),
+        gt=cv2.resize(scene.gt, VGA, interpolation=cv2.INTER_NEAREST) * np.float32(VGA[0] / scene.left.shape[1]),
+        mask=None,
+        calib={},  # the range from the scaled ground truth
+    )
+    params = make_params(profile, {"disparity_range": vga.disparity_range()})
+    _, _, filter_ms, match_ms = timed_run(
+        StereoPipeline(params), static_sequence(vga, VGA_FRAMES, 3), settings, None, 0
+    )
+    cost = f"{filter_ms:.1f} ms = {filter_ms / match_ms:.3f}x the match ({match_ms:.0f} ms)"
     if markdown:
-        print(table_row(("640x480 (VGA), time only", f"`{profile}`", "-", "-", "-", "-", f"{ms:.1f}")))
+        print(table_row((f"640x480 (VGA) {scene.name}, time only", f"`{profile}`", "-", "-", "-", "-", cost)))
     else:
-        print(f"{'640x480 (VGA), time only':28s}{profile:9s}{'on':6s}{'':45s}{ms:8.2f}")
+        print(f"{'640x480 (VGA), time only':28s}{profile:9s}{'on':6s}{cost}")
+
+
+@dataclasses.dataclass
+class RecordedRow:
+    sporadic: float  # per frame
+    jumps: float  # per frame
+    density: float
+
+
+def recorded_metrics(disparities: list[np.ndarray]) -> RecordedRow:
+    """Sporadic points, jumps and density of a recording's scored frames (no ground truth)."""
+    d = np.stack(disparities)
+    valid = np.isfinite(d)
+    share = valid.mean(axis=0)
+    sporadic = valid & (share < SPORADIC_SHARE)[None]
+    both = valid[1:] & valid[:-1]
+    with np.errstate(invalid="ignore"):
+        jumps = both & (np.abs(d[1:] - d[:-1]) > JUMP_PX)
+    return RecordedRow(
+        sporadic=float(sporadic.sum() / len(d)),
+        jumps=float(jumps.sum() / max(1, len(d) - 1)),
+        density=float(valid.mean()),
+    )
+
+
+def recordings(data: Path, profiles: list[str], settings: TemporalSettings, warm_up: int, markdown: bool) -> list[str]:
+    """Each recording in `data` through each profile, filter off and on; rows, then summary lines."""
+    folders = sorted(path for path in data.iterdir() if path.is_dir())
+    if not folders:
+        msg = f"{data}: no recording folders in it (bench/README.md says how to build them)"
+        raise SystemExit(msg)
+    if markdown:
+        print(
+            table_header(
+                ("recording", "profile", "frames", "sporadic points, on / off", "jumps, on / off", "density, off -> on")
+            )
+        )
+    summary = []
+    for profile in profiles:
+        worst = {"sporadic": 0.0, "jumps": 0.0, "density": 0.0}
+        for folder in folders:
+            frames = list(read_frames([folder]))
+            pipeline = StereoPipeline(make_params(profile))
+            camera = (
+                None if frames[0].left_info is None else pipeline.camera_for(frames[0].left_info, frames[0].right_info)
+            )
+            rows = []
+            for chosen in (None, settings):
+                sequence = ((f.left, f.right, np.zeros(f.left.shape[:2], np.float32)) for f in frames)
+                outs, _, _ = run(pipeline, sequence, chosen, camera, warm_up)
+                rows.append(recorded_metrics(outs))
+            off, on = rows
+            sporadic, jumps = on.sporadic / max(off.sporadic, 1e-9), on.jumps / max(off.jumps, 1e-9)
+            worst["sporadic"] = max(worst["sporadic"], sporadic)
+            worst["jumps"] = max(worst["jumps"], jumps)
+            worst["density"] = min(worst["density"], on.density - off.density)
+            cells = (
+                f"{sporadic:.2f} ({on.sporadic:,.0f} / {off.sporadic:,.0f})",
+                f"{jumps:.3f} ({on.jumps:,.0f} / {off.jumps:,.0f})",
+                f"{off.density:.3f} -> {on.density:.3f}",
+            )
+            if markdown:
+                print(table_row((folder.name, f"`{profile}`", len(frames) - warm_up, *cells)))
+            else:
+                print(f"{folder.name:28s}{profile:9s}{len(frames) - warm_up:5d}  " + "  ".join(cells))
+        summary.append(
+            f"recorded, {profile}, worst of {len(folders)}: sporadic points on/off {worst['sporadic']:.3f}, "
+            f"jumps on/off {worst['jumps']:.3f}, density on-off {worst['density']:+.4f}"
+        )
+    return summary
 
 
 if __name__ == "__main__":

@@ -306,12 +306,12 @@ def test_shards_with_the_temporal_filter_equal_one_pass(capsys: pytest.CaptureFi
 def test_shards_too_slow_for_the_temporal_filters_lead_in_are_refused(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """At 2 Hz a 2 s lead-in holds 4 frames, not the 16 the filter needs: an error, not a different output."""
+    """At 2 Hz a 2 s lead-in holds 4 frames, not the 20 the filter needs: an error, not a different output."""
     (tmp_path / "inputs").mkdir()
     bag = make_bag(tmp_path / "inputs" / "slow", *[SCENES / "artl"] * 12, rate=2.0)
     temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]
     code, errors, _ = run_fleet(capsys, str(bag), "--out-dir", str(tmp_path / "out"), "--shard-seconds", "3", *temporal)
-    assert code == 1 and len(errors) == 1 and "needs 16 frames before it" in errors[0], errors
+    assert code == 1 and len(errors) == 1 and "needs 20 frames before it" in errors[0], errors
     assert not (tmp_path / "out" / "slow").exists()
 
 

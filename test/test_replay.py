@@ -145,7 +145,9 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
     filtered disparity bit for bit (a stereo_node of its own, fed through remaps)."""
     bag = tmp_path / "euroc30"
     assert main(["make-bag", str(euroc_sequence(tmp_path / "sequence", 30)), str(bag), "--rate", "10"]) == 0
-    params, options = make_params("default", {"temporal_filter": True}), ProcessOptions(outputs=("disparity",))
+    # the view jumps (the EuRoC frames looped): the ego-motion test would make the filter stand aside
+    filtering = {"temporal_filter": True, "temporal_ego_motion": 0.0}
+    params, options = make_params("default", filtering), ProcessOptions(outputs=("disparity",))
     summary = process_bag(bag, tmp_path / "processed", params, options)
     offline = {
         stamp_to_ns(m.header.stamp): disparity_from_msg(m)
@@ -158,7 +160,8 @@ def test_stereo_node_with_the_temporal_filter_matches_process_on_30_frames(
     namespace = "/temporal"
     # A frame lost on a busy machine would change every filtered frame after it: queues hold them all, and
     # 2.5 frames/s keeps the node ahead of its input even with a second test file and a busy core beside it.
-    args = ["-p", "temporal_filter:=true", "-p", "max_waiting_frames:=30", "-p", "queue_size:=30"]
+    args = ["-p", "temporal_filter:=true", "-p", "temporal_ego_motion:=0.0", "-p", "max_waiting_frames:=30"]
+    args += ["-p", "queue_size:=30"]
     node = NodeProcess("stereo_node", namespace, large_images_env, tmp_path, args)
     with ros.running([node]):
         collector = ros.collector(DisparityImage, f"{namespace}/disparity")

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core.temporal import TemporalFilter, TemporalSettings, lead_in_frames
+from stereo_depth.core.temporal import LONG_RUN, TemporalFilter, TemporalSettings, lead_in_frames
 from stereo_depth.errors import ParameterError
 
 PERIOD_NS = 33_333_333
-SETTINGS = TemporalSettings()  # the defaults: alpha 0.4, delta 2 px, 4 of the last 8 frames
+SETTINGS = TemporalSettings()  # the defaults: alpha 0.2, delta 2 px, 4 of the last 8 frames, valid in half of 16
 CALIBRATION = ("camera", 1)
 
 
@@ -58,6 +59,65 @@ def test_a_pixel_whose_noise_spreads_wider_than_delta_stays_valid() -> None:
         assert np.abs(o - 20.0).max() <= SETTINGS.delta
 
 
+def test_a_wrong_match_that_comes_back_in_runs_where_the_pixel_is_mostly_a_hole_is_never_output() -> None:
+    """A real sensor's errors repeat: runs of 4 frames pass persistence, not presence (half of 16)."""
+    frames = [frame(np.nan) for _ in range(40)]
+    for k, d in enumerate(frames):
+        if k % 8 < 4:  # valid in half the frames: in runs of 4 with 4-frame holes between
+            d[0, 0] = 20.0
+        if k % 16 < 5:  # valid in 5 of every 16 frames, in runs of 5
+            d[1, 1] = 50.0
+    out = feed(TemporalFilter(), frames)
+    assert all(np.isnan(o[1, 1]) for o in out[LONG_RUN:])  # (before, presence counts the frames seen)
+    assert all(o[0, 0] == 20.0 for o in out[LONG_RUN:] if not np.isnan(o[0, 0]))
+    assert sum(not np.isnan(o[0, 0]) for o in out[LONG_RUN:]) >= (len(out) - LONG_RUN) // 2
+
+
+def test_a_value_that_alternates_with_the_pixels_long_run_value_is_not_output() -> None:
+    """A wrong value that keeps coming back on a surface: each run of 4 passes the last 8 frames, not the
+    long run, where the surface's value has more support."""
+    frames = [frame(20.0) for _ in range(40)]
+    for k, d in enumerate(frames):
+        if k % 12 >= 8:  # 8 frames of the surface, then 4 of a wrong value, and again
+            d[0, 0] = 50.0
+    out = feed(TemporalFilter(), frames)
+    assert all(o[0, 0] != 50.0 for o in out[12:])  # its first run is a clean change: no history against it
+    assert sum(o[0, 0] == 20.0 for o in out[12:]) >= len(out[12:]) * 3 // 4
+
+
+def test_a_candidate_with_more_frames_against_it_than_for_it_is_not_output() -> None:
+    """The disagree rule, with persistence 3 so that it decides: 3 frames of 30 after 5 of 10."""
+    values = [10.0] * 5 + [30.0] * 3
+    out = feed(TemporalFilter(), [frame(v) for v in values], persistence=3)
+    assert np.isnan(out[-1]).all()  # 30 has 3 frames for it and 5 against; 10 is not a candidate any more
+    out = feed(TemporalFilter(), [frame(v) for v in [10.0] * 3 + [30.0] * 3], persistence=3)
+    np.testing.assert_array_equal(out[-1], 30.0)  # as many for as against: passes
+
+
+def test_support_and_conflict_are_weighed_by_confidence() -> None:
+    """Four frames of 30 that the matcher hardly trusts against four of 10 that it trusts: not output;
+    the same frames equally trusted pass (a tie)."""
+    temporal = TemporalFilter()
+    values, confidences = [10.0] * 4 + [30.0] * 4, [0.9] * 4 + [0.2] * 4
+    for k, (value, confidence) in enumerate(zip(values, confidences, strict=True)):
+        out = temporal.apply(frame(value), frame(confidence), k * PERIOD_NS, CALIBRATION, SETTINGS)
+    assert np.isnan(out).all()
+    even = TemporalFilter()
+    for k, value in enumerate(values):
+        out = even.apply(frame(value), frame(0.5), k * PERIOD_NS, CALIBRATION, SETTINGS)
+    np.testing.assert_array_equal(out, 30.0)
+
+
+@pytest.mark.parametrize("alpha", [0.2, 0.6, 1.0])
+def test_the_value_is_the_average_with_the_newest_frame_weighted_by_alpha(alpha: float) -> None:
+    """Seven frames of 10 then one of 11 (all within delta): alpha, then alpha (1 - alpha)^k for the frame
+    k frames older; rounded to 1/16 px."""
+    out = feed(TemporalFilter(), [frame(10.0)] * 7 + [frame(11.0)], alpha=alpha)[-1]
+    weights = alpha * (1.0 - alpha) ** np.arange(8)
+    expected = (11.0 * weights[0] + 10.0 * weights[1:].sum()) / weights.sum()
+    np.testing.assert_array_equal(out, np.round(expected * 16.0) / 16.0)
+
+
 def test_confidence_weights_each_frame() -> None:
     temporal = TemporalFilter()
     values, confidences = [10.0, 11.0, 10.0, 11.0], [0.9, 0.1, 0.9, 0.1]
@@ -83,6 +143,16 @@ def test_history_is_forgotten_when_the_stream_breaks(break_at: object) -> None:
     assert not np.isnan(steady.apply(frame(20.0), None, 8 * PERIOD_NS, CALIBRATION, SETTINGS)).any()
 
 
+@pytest.mark.parametrize(("periods", "forgotten"), [(3, False), (5, True)])
+def test_a_gap_of_more_than_four_frame_periods_restarts(periods: int, forgotten: bool) -> None:
+    """Two dropped frames (a gap of 3 periods) keep the history; a gap of 5 periods forgets it."""
+    temporal = TemporalFilter()
+    feed(temporal, [frame(20.0) for _ in range(8)])
+    out = temporal.apply(frame(20.0), None, (7 + periods) * PERIOD_NS, CALIBRATION, SETTINGS)
+    assert np.isnan(out).all() == forgotten
+    assert not np.isnan(out).any() or forgotten
+
+
 def test_history_is_forgotten_when_the_calibration_changes() -> None:
     temporal = TemporalFilter()
     feed(temporal, [frame(20.0) for _ in range(8)])
@@ -95,24 +165,91 @@ def test_motion_reset_restarts_every_pixel_when_all_change_at_once() -> None:
     np.testing.assert_array_equal(kept, 20.0)  # off: one frame of the old view (then holes)
     reset = feed(TemporalFilter(), before + after, motion_reset=0.5)[-1]
     assert np.isnan(reset).all()
+    part = frame(20.0)
+    part[:1] = 40.0  # a quarter of the pixels changed: below the share, nothing restarts
+    kept = feed(TemporalFilter(), [*before, part], motion_reset=0.5)[-1]
+    np.testing.assert_array_equal(kept[1:], 20.0)
+
+
+def test_while_the_view_moves_frames_pass_unfiltered_and_the_history_is_forgotten() -> None:
+    """Without odometry the filter stands aside when the camera turns: the view shifts by 3 px a frame,
+    so the history no longer lies under the same pixels; the raw disparity passes (no worse than no
+    filter), and once the view holds still the filter takes over again as soon as persistence allows."""
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (5, 5), 0)  # a VGA view
+    rows = np.arange(120, dtype=np.float32)[:, None]
+    temporal = TemporalFilter()
+    outs, raws = [], []
+    for k in range(20):
+        shift = 3 * k if k < 12 else 33  # turning, then still
+        raw = (20.0 + rows / 10.0 + shift / 10.0 + rng.normal(0.0, 0.3, (120, 160))).astype(np.float32)
+        view = np.roll(texture, shift, axis=0)
+        outs.append(temporal.apply(raw, None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=view))
+        raws.append(raw)
+    for k in range(1, 12):
+        np.testing.assert_array_equal(outs[k], raws[k])  # moving: the matcher's disparity as it is
+    for k in range(12, 10 + SETTINGS.persistence):  # (the last turn, frame 11, restarted the history)
+        np.testing.assert_array_equal(outs[k], raws[k])  # still again: unfiltered until the history is refilled
+    filtered = outs[-1]
+    assert not np.array_equal(filtered, raws[-1]) and np.isfinite(filtered).mean() > 0.9
+    assert np.std(filtered - filtered.mean()) < np.std(raws[-1] - raws[-1].mean())  # averaged again
+    still = TemporalFilter()
+    for k in range(8):
+        out = still.apply(frame(20.0), None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=texture)
+    np.testing.assert_array_equal(out, 20.0)  # a still view: filtered as without the test
+
+
+def test_an_object_crossing_a_still_view_does_not_make_the_filter_stand_aside() -> None:
+    """One part of the view moves 8 px a frame (a person walking by), the rest holds still: the camera
+    did not move, and the filter keeps filtering."""
+    rng = np.random.default_rng(4)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (5, 5), 0)
+    temporal = TemporalFilter()
+    for k in range(10):
+        view = texture.copy()
+        view[160:288, 213:341] = np.roll(texture[160:288, 213:341], 8 * k, axis=1)
+        raw = frame(20.0) + np.float32(0.1 * (k % 2))
+        out = temporal.apply(raw, None, k * PERIOD_NS, CALIBRATION, SETTINGS, view=view)
+    assert not np.array_equal(out, raw)  # filtered: the average, not this frame's values
+    assert np.isfinite(out).all()
 
 
 def test_the_output_depends_on_the_last_frames_only() -> None:
-    """What lets a shard start with `lead_in_frames` frames and give what one pass gives."""
+    """What lets a shard start with `lead_in_frames` frames and give what one pass gives: the last frames
+    and the stamps that decide the restarts among them."""
     rng = np.random.default_rng(1)
+    surface = rng.uniform(5, 60, (30, 30))
 
     def frames(n: int) -> list[np.ndarray]:
+        """The surface with noise, holes in 40 % of the pixels and wrong values in 10 %, fresh each frame."""
         out = []
         for _ in range(n):
-            d = rng.uniform(5, 60, (30, 30)).astype(np.float32)
-            d[rng.random(d.shape) < 0.3] = np.nan
+            d = (surface + rng.normal(0.0, 0.7, surface.shape)).astype(np.float32)
+            d[rng.random(d.shape) < 0.1] = rng.uniform(5, 60)
+            d[rng.random(d.shape) < 0.4] = np.nan
             out.append(d)
         return out
 
-    common = frames(lead_in_frames() + 5)
-    long_past = feed(TemporalFilter(), frames(23) + common)[-5:]
-    lead_in_only = feed(TemporalFilter(), common, first=23)[-5:]
-    for a, b in zip(long_past, lead_in_only, strict=True):
+    lead = lead_in_frames()
+    past, common = frames(23), frames(lead + 5)
+    # past frames 1 period apart, the common ones 2; a gap of 5 periods before the first frame whose
+    # restart would reach the first output compared: one only when the stamps before it include the past's
+    gap_at = lead - 14
+    stamps = [k * PERIOD_NS for k in range(len(past))]
+    for k in range(len(common)):
+        stamps.append(stamps[-1] + (5 if k == gap_at else 2) * PERIOD_NS)
+    settings = TemporalSettings()
+
+    def run(first: int) -> list[np.ndarray]:
+        temporal = TemporalFilter()
+        sequence = (past + common)[first:]
+        return [
+            temporal.apply(d, None, t, CALIBRATION, settings) for d, t in zip(sequence, stamps[first:], strict=True)
+        ]
+
+    compared = list(zip(run(0)[-5:], run(len(past))[-5:], strict=True))
+    assert all(np.isfinite(a).mean() > 0.3 for a, _ in compared)  # pixels pass: the rules decide them
+    for a, b in compared:
         np.testing.assert_array_equal(a, b)
 
 

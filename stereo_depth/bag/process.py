@@ -186,7 +186,7 @@ def process_bag(
             sync=options.sync,
             choice=choice,
             window=options.window,
-            lead_in_frames=lead_in_frames(params.temporal_history) if params.temporal_filter else 0,
+            lead_in_frames=lead_in_frames() if params.temporal_filter else 0,
         ) as reader,
         BagWriter(
             out_bag,

@@ -120,6 +120,20 @@ class StereoParams:
         0.0,
         1.0,
     )
+    temporal_presence: float = option(
+        0.5,
+        "Temporal filter: share of the last 16 frames a pixel must be valid in to be output (a wrong match "
+        "in a place that is mostly a hole, even one that comes back a few frames in a row, is not)",
+        0.0,
+        1.0,
+    )
+    temporal_ego_motion: float = option(
+        0.5,
+        "Temporal filter: when the view shifts by more than this many px between frames (the camera turns or "
+        "moves), forget the history and pass frames through unfiltered until it is refilled (0 = off)",
+        0.0,
+        100.0,
+    )
 
     # Glare and the spatial filter (core/saturation.py, core/spatial.py)
     invalidate_saturated: bool = option(
@@ -166,6 +180,8 @@ class StereoParams:
             self.temporal_persistence,
             self.temporal_history,
             self.temporal_motion_reset,
+            self.temporal_presence,
+            self.temporal_ego_motion,
         )
 
     @property

@@ -1,20 +1,32 @@
-"""Temporal filter: per-pixel disparity over the last few frames, so a match seen once never becomes a point.
+"""Temporal filter: per-pixel disparity over the last frames, so a match seen once, or a wrong one that
+comes back now and then, never becomes a point.
 
 Navigation stacks mark what a depth frame shows; a pixel that is wrong in one frame is a ghost obstacle.
-For each pixel the filter keeps its disparity in the last `history` frames (1/16 px, HOLE where
-invalid). The values of the three newest frames are its candidates; the remembered frames
-within `delta` px of one support it, the other valid ones conflict with it. A candidate passes when at
-least `persistence` frames support it (RealSense's "valid in k of the last n": a wrong match seen once
-has no support) and no more conflict than support (a pixel that flips between two values is not
-output); of those that pass, the one with the most support is output (confidence-weighted when the
-matcher gives one, census_sgm), the newer on a tie; none passes: invalid. Three candidates, not the
-newest value alone: in textureless parts the noise spreads wider than `delta`, and the newest value at
-the edge of the spread would blank a pixel that a value of the frames before still describes. Older
-values never stand in, so an object that left leaves a trail of at most 2 frames, and a hole of up to
-2 frames keeps the last value.
+For each pixel the filter keeps its disparity in the last `LONG_RUN` frames (1/16 px, HOLE where invalid)
+and the matcher's confidence (1 for a matcher without one). The values of the three newest frames are
+its candidates; a remembered frame within `delta` px of one supports it, another valid one conflicts
+with it, each vote weighed by that frame's confidence. A candidate passes when
 
-The value is an exponential average of the supporting frames (`alpha`, the newest frame's weight;
-older frames' weights fall by 1 - alpha per frame; each also weighted by the matcher's confidence),
+- persistence: at least `persistence` of the last `history` frames support it (RealSense's "valid in k
+  of the last n": a wrong match seen once has no support);
+- the disagree rule: over those frames, its confidence-weighted support is no less than its weighted
+  conflict (a pixel that flips between two values is not output);
+- the long-run rules, over the last `LONG_RUN` frames: the pixel was valid in at least `presence` of
+  them (a wrong match in a place that is mostly a hole comes back in runs of a few frames on a real
+  sensor, and persistence alone would pass each run), and, when its supporting frames alternate with
+  conflicting ones (the pixel keeps switching surfaces, or the wrong value was seen before), its
+  weighted support over the long run is no less than the conflict. A clean change (every conflicting
+  frame older than every supporting one: an object arrived) is exempt, so new surfaces appear as soon
+  as persistence allows.
+
+Of those that pass, the one with the most (weighted) support is output, the newer on a tie; none passes:
+invalid. Three candidates, not the newest value alone: in textureless parts the noise spreads wider than
+`delta`, and the newest value at the edge of the spread would blank a pixel that a value of the frames
+before still describes. Older values never stand in, so an object that left leaves a trail of at most 2
+frames, and a hole of up to 2 frames keeps the last value.
+
+The value is an exponential average of the supporting frames of the last `history` (`alpha`, the newest
+frame's weight; older frames' weights fall by 1 - alpha per frame; each also weighted by its confidence),
 taken as the candidate plus its supporters' average offset, so equal values average to themselves
 exactly, and rounded to 1/16 px, the step the history holds and DisparityImage announces (delta_d).
 
@@ -24,6 +36,11 @@ Everything restarts (the history is emptied) when the stamp goes back (a looping
 driver), when more than `GAP_PERIODS` frame periods pass without a frame, when the calibration or the
 image size changes, and, with `motion_reset`, when more than that share of the pixels valid in both
 frames changed by more than `delta` since the previous frame (the camera jumped: everything changed).
+Given the frame's rectified left image, it also restarts when the view shifted by more than `ego_motion`
+px since the previous frame (the median over tiles of their phase correlation, so an object crossing a
+still view does not count): the camera turns or moves, and the history no longer lies under the same
+pixels. It then stands aside: frames pass unfiltered until `persistence` frames of a still view refill
+the history, so that without odometry the filter never makes a moving camera's depth worse.
 ROS-free; the kernels are numba-compiled on first use (census_sgm's dependency), then cached.
 """
 
@@ -36,12 +53,17 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 
 from stereo_depth.errors import ParameterError
 
 MAX_HISTORY = 8  # frames: RealSense's "k of the last 8"
+LONG_RUN = 16  # frames the long-run rules look back over
 GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of the last intervals) restarts
+PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
+VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
+VIEW_TILES = 3  # in 3 x 3 tiles
 
 
 @dataclass(frozen=True)
@@ -53,6 +75,8 @@ class TemporalSettings:
     persistence: int = 4
     history: int = MAX_HISTORY
     motion_reset: float = 0.0  # share of changed pixels that restarts every pixel; 0: off
+    presence: float = 0.5  # share of the last LONG_RUN frames a pixel must be valid in
+    ego_motion: float = 0.5  # px the view may shift between frames before the filter stands aside; 0: off
 
     def validate(self) -> TemporalSettings:
         if not 0.0 < self.alpha <= 1.0:
@@ -63,6 +87,12 @@ class TemporalSettings:
             raise ParameterError(msg)
         if not 1 <= self.persistence <= self.history:
             msg = f"temporal_persistence {self.persistence} must be in [1, temporal_history ({self.history})]"
+            raise ParameterError(msg)
+        if not 0.0 <= self.presence <= 1.0:
+            msg = f"temporal_presence {self.presence} must be in [0, 1]"
+            raise ParameterError(msg)
+        if self.ego_motion < 0.0:
+            msg = f"temporal_ego_motion {self.ego_motion} must be >= 0"
             raise ParameterError(msg)
         return self
 
@@ -76,29 +106,56 @@ def compile_kernels() -> None:
             temporal.apply(np.ones((2, 2), np.float32), confidence, stamp, None, TemporalSettings(motion_reset=0.5))
 
 
-def lead_in_frames(history: int = MAX_HISTORY) -> int:
+def _view_shift(previous: np.ndarray, current: np.ndarray) -> float:
+    """How far the view moved, px at this size: the median over VIEW_TILES x VIEW_TILES tiles of each
+    tile's shift (phase correlation), so that an object moving across a still view does not count."""
+    height, width = _dft_size(current.shape[0] // VIEW_TILES), _dft_size(current.shape[1] // VIEW_TILES)
+    window = _hanning((height, width))
+    shifts = []
+    for row in range(VIEW_TILES):
+        for col in range(VIEW_TILES):
+            tile = np.s_[row * height : (row + 1) * height, col * width : (col + 1) * width]
+            (dx, dy), _ = cv2.phaseCorrelate(previous[tile].copy(), current[tile].copy(), window)  # it writes to them
+            shifts.append(np.hypot(dx, dy))
+    return float(np.median(shifts))
+
+
+def _dft_size(size: int) -> int:
+    """The largest power of two up to `size`: OpenCV's phase correlation reports a still view as shifted by
+    half a pixel at some other sizes (13-15, 25-27, 41-45 px, ...)."""
+    return 1 << max(0, size.bit_length() - 1)
+
+
+@functools.cache
+def _hanning(shape: tuple[int, int]) -> np.ndarray:
+    return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
+
+
+def lead_in_frames() -> int:
     """Frames before a shard's first that give it the state one pass has there: the output depends on
-    the last `history` frames, and the restarts among them on the `history` stamps before each."""
-    return 2 * history
+    the last LONG_RUN frames, and the restarts among them on the PERIOD_STAMPS stamps before each."""
+    return LONG_RUN + PERIOD_STAMPS
 
 
 class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        # (MAX_HISTORY, pixels): rows 0..history-1 a ring of frames, the rest HOLE (the kernel reads 8 rows)
-        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, before a restart, or beyond history
+        # (LONG_RUN, pixels): a ring of the last frames, rows before the last restart HOLE
+        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, or before a restart
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
-        self._history = 0
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
-        self._stamps: deque[int] = deque(maxlen=MAX_HISTORY)  # the last stamps, across restarts
+        self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
         self._calibration: Hashable = None
+        self._view: np.ndarray | None = None  # the last frame's view, small, for the ego-motion test
+        self._standing_aside = False  # the view moved: frames pass unfiltered until the history is refilled
 
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
-        self._values = self._weights = None
+        self._values = self._weights = self._view = None
         self._head, self._frames, self._calibration = -1, 0, None
+        self._standing_aside = False
         self._stamps.clear()
 
     def apply(
@@ -108,21 +165,24 @@ class TemporalFilter:
         stamp_ns: int,
         calibration: Hashable,
         settings: TemporalSettings,
+        *,
+        view: np.ndarray | None = None,
     ) -> np.ndarray:
-        """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed."""
+        """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed.
+        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test."""
         kernels = _kernels()
-        pixels, history = disparity.size, settings.history
+        turned = self._view_moved(view, settings.ego_motion)
+        pixels = disparity.size
         if (
             self._values is None
             or self._values.shape[1] != pixels
-            or history != self._history
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((MAX_HISTORY, pixels), HOLE, np.int16)
-            self._weights = None if confidence is None else np.zeros((MAX_HISTORY, pixels), np.uint8)
-            self._head, self._frames, self._history = -1, 0, history
-        previous, self._head = self._head, (self._head + 1) % history
+            self._values = np.full((LONG_RUN, pixels), HOLE, np.int16)
+            self._weights = None if confidence is None else np.zeros((LONG_RUN, pixels), np.uint8)
+            self._head, self._frames = -1, 0
+        previous, self._head = self._head, (self._head + 1) % LONG_RUN
         both, changed = kernels["store"](
             disparity.reshape(-1),
             None if confidence is None else confidence.reshape(-1),
@@ -132,26 +192,45 @@ class TemporalFilter:
             np.float32(settings.delta),
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
-        if self._frames == 0 or moved or self._stamp_breaks(stamp_ns):
-            self._values[np.arange(MAX_HISTORY) != self._head] = HOLE
+        if self._frames == 0 or moved or turned or self._stamp_breaks(stamp_ns):
+            self._values[np.arange(LONG_RUN) != self._head] = HOLE
             self._frames = 0
+        self._standing_aside = turned or self._standing_aside
         self._stamps.append(stamp_ns)
         self._calibration = calibration
         self._frames += 1
-        ages = np.arange(MAX_HISTORY)
-        slots = np.where(ages < history, (self._head - ages) % history, ages)  # newest first; then HOLE rows
         out = np.empty(pixels, np.float32)
         kernels["filter"](
             self._values,
             self._weights,
-            slots,
-            _decays(settings.alpha),
+            (self._head - np.arange(LONG_RUN)) % LONG_RUN,  # the rows, newest first
+            _decays(settings.alpha, settings.history),
+            (np.arange(MAX_HISTORY) < settings.history).astype(np.float32),  # the short window
             np.float32(settings.delta),
             np.float32(settings.persistence),
+            np.float32(settings.presence * min(self._frames, LONG_RUN)),
             out,
             _threads(),
         )
+        if self._standing_aside and self._frames < settings.persistence:
+            return disparity.astype(np.float32, copy=True)  # no worse than no filter while the view moves
+        self._standing_aside = False
         return out.reshape(disparity.shape)
+
+    def _view_moved(self, view: np.ndarray | None, limit: float) -> bool:
+        """Whether the view shifted by more than `limit` px since the last frame (the camera turned or
+        moved: the history no longer lies under the same pixels); remembers this frame's view."""
+        if view is None or limit <= 0.0:
+            self._view = None
+            return False
+        small = cv2.resize(
+            view, (view.shape[1] // VIEW_SCALE, view.shape[0] // VIEW_SCALE), interpolation=cv2.INTER_AREA
+        )
+        small = small.astype(np.float32)
+        previous, self._view = self._view, small
+        if previous is None or previous.shape != small.shape or self._frames == 0:
+            return False
+        return _view_shift(previous, small) * VIEW_SCALE > limit
 
     def _stamp_breaks(self, stamp_ns: int) -> bool:
         """The stamp went back, or more than GAP_PERIODS frame periods passed (the period: the shortest
@@ -168,11 +247,11 @@ class TemporalFilter:
 
 # ----------------------------------------------------------------------------------------------- kernels
 # The history holds 1/16 px fixed point (int16, HOLE where invalid) and the confidence as 0..255 (uint8):
-# a quarter of float32's bytes to stream through per frame. Always MAX_HISTORY rows, those beyond
-# `history` HOLE, so the kernel's frame loop is written out eight times and each pixel's sums stay in
-# registers (a loop over the frames inside the pixel loop would keep it from vectorising). No fastmath:
-# its contractions (FMA) differ between a vector loop and its scalar remainder, so a pixel's result would
-# depend on where its row starts in memory, and live and offline would differ in the last bit.
+# a quarter of float32's bytes to stream through per frame. Always LONG_RUN rows, those before a restart
+# HOLE, so the kernel's frame loop is written out and each pixel's sums stay in registers (a loop over the
+# frames inside the pixel loop would keep it from vectorising). No fastmath: its contractions (FMA) differ
+# between a vector loop and its scalar remainder, so a pixel's result would depend on where its row starts
+# in memory, and live and offline would differ in the last bit.
 
 SUBPIXELS = 16  # the history's and the output's step, 1/16 px: DisparityImage's delta_d, OpenCV's fixed point
 HOLE = np.int16(-32768)
@@ -206,11 +285,12 @@ def _store(
     return both, changed
 
 
-def _decays(alpha: float) -> np.ndarray:
-    """Each age's weight in the average, newest first: alpha, then falling by 1 - alpha a frame."""
-    decays = np.empty(MAX_HISTORY, np.float32)
+def _decays(alpha: float, history: int) -> np.ndarray:
+    """Each age's weight in the average, newest first: alpha, then falling by 1 - alpha a frame; 0 from
+    `history` on."""
+    decays = np.zeros(MAX_HISTORY, np.float32)
     decay, keep = np.float32(alpha), np.float32(1.0) - np.float32(alpha)
-    for age in range(MAX_HISTORY):
+    for age in range(history):
         decays[age] = decay
         decay *= keep
     return decays
@@ -221,29 +301,34 @@ def _filter_pixels(
     weights: np.ndarray | None,
     slots: np.ndarray,
     decays: np.ndarray,
+    short: np.ndarray,
     delta: np.float32,
     persistence: np.float32,
+    presence: np.float32,
     out: np.ndarray,
     parts: int,
 ) -> None:
-    """Per pixel, each of the values of the three newest frames is a candidate; over the history, the
-    frames within `delta` of it support it, the other valid frames conflict with it. A candidate passes
-    with support >= persistence and support >= conflict; of those that pass, the one with the most
-    support (confidence-weighted when the matcher gives one) is output, the newer on a tie: its weighted
-    average (candidate + the average offset of its supporters, so equal values average to themselves
-    exactly), rounded to 1/16 px. None passes: invalid.
+    """Per pixel, in two passes: over the short window (`history`) each of the values of the three newest
+    frames is a candidate, tested by persistence and the disagree rule, and the best that passes is
+    chosen; over the long run that one is vetted by presence and, when its supporters alternate with
+    conflicting frames, the long-run majority. Output: its weighted average (candidate + the average
+    offset of its supporters, so equal values average to themselves exactly), rounded to 1/16 px; none
+    chosen, or vetoed: invalid.
 
-    `slots`: the MAX_HISTORY rows, newest first (rows of frames before a restart or beyond the history
-    are HOLE: they support nothing). The pixels are cut into `parts` runs, one per thread; each pixel's
-    result is the same whatever the count."""
+    `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are HOLE: they vote for
+    nothing); `short[age]` 1 for the frames of the short window, else 0 (and `decays[age]` 0).
+    `presence`: the valid frames a pixel needs. The pixels are cut into `parts` runs, one per thread;
+    each pixel's result is the same whatever the count."""
     for part in prange(parts):
         _filter_range(
             values,
             weights,
             slots,
             decays,
+            short,
             delta,
             persistence,
+            presence,
             out,
             part * out.size // parts,
             (part + 1) * out.size // parts,
@@ -255,69 +340,92 @@ def _filter_range(
     weights: np.ndarray | None,
     slots: np.ndarray,
     decays: np.ndarray,
+    short: np.ndarray,
     delta: np.float32,
     persistence: np.float32,
+    presence: np.float32,
     out: np.ndarray,
     first: int,
     last: int,
 ) -> None:
-    """`_filter_pixels` on the pixels first..last-1. The eight frames are written out one by one
-    (`_add_frame`, inlined) on row views indexed from 0, so that each pixel's sums stay in registers and
-    the pixel loop vectorises; numba compiles the `weights is None` case (no confidence) without the
-    weights."""
+    """`_filter_pixels` on the pixels first..last-1. The frames are added one by one (`_add_frame` and
+    `_long_vote`, inlined), newest first, on row views indexed from 0, so that each pixel's sums stay in
+    registers and the pixel loop vectorises; numba compiles the `weights is None` case (no confidence)
+    without them."""
     one = np.float32(1.0)
     limit = delta * np.float32(SUBPIXELS)
-    v0, v1, v2, v3, v4, v5, v6, v7 = _frame_rows(values, slots, first, last)
-    d0, d1, d2, d3, d4, d5, d6, d7 = (
-        decays[0],
-        decays[1],
-        decays[2],
-        decays[3],
-        decays[4],
-        decays[5],
-        decays[6],
-        decays[7],
-    )
+    long_limit = limit * np.float32(2.0)
+    r = _frame_rows(values, slots, first, last)
+    d = _ages(decays)
+    h = _ages(short)
     result = out[first:last]
     if weights is None:
         for i in range(last - first):
-            a, b, c = np.float32(v0[i]), np.float32(v1[i]), np.float32(v2[i])
-            sums = _add_frame(_NO_SUMS, v0[i], one, d0, a, b, c, limit)
-            sums = _add_frame(sums, v1[i], one, d1, a, b, c, limit)
-            sums = _add_frame(sums, v2[i], one, d2, a, b, c, limit)
-            sums = _add_frame(sums, v3[i], one, d3, a, b, c, limit)
-            sums = _add_frame(sums, v4[i], one, d4, a, b, c, limit)
-            sums = _add_frame(sums, v5[i], one, d5, a, b, c, limit)
-            sums = _add_frame(sums, v6[i], one, d6, a, b, c, limit)
-            sums = _add_frame(sums, v7[i], one, d7, a, b, c, limit)
-            result[i] = _chosen(sums, a, b, c, persistence)
+            a, b, c = np.float32(r[0][i]), np.float32(r[1][i]), np.float32(r[2][i])
+            s = _NO_SUMS
+            s = _add_frame(s, r[0][i], one, d[0], h[0], a, b, c, limit)
+            s = _add_frame(s, r[1][i], one, d[1], h[1], a, b, c, limit)
+            s = _add_frame(s, r[2][i], one, d[2], h[2], a, b, c, limit)
+            s = _add_frame(s, r[3][i], one, d[3], h[3], a, b, c, limit)
+            s = _add_frame(s, r[4][i], one, d[4], h[4], a, b, c, limit)
+            s = _add_frame(s, r[5][i], one, d[5], h[5], a, b, c, limit)
+            s = _add_frame(s, r[6][i], one, d[6], h[6], a, b, c, limit)
+            s = _add_frame(s, r[7][i], one, d[7], h[7], a, b, c, limit)
+            x, mean = _chosen(s, a, b, c, persistence)
+            t = _NO_LONG_RUN
+            t = _long_vote(t, r[0][i], one, x, long_limit)
+            t = _long_vote(t, r[1][i], one, x, long_limit)
+            t = _long_vote(t, r[2][i], one, x, long_limit)
+            t = _long_vote(t, r[3][i], one, x, long_limit)
+            t = _long_vote(t, r[4][i], one, x, long_limit)
+            t = _long_vote(t, r[5][i], one, x, long_limit)
+            t = _long_vote(t, r[6][i], one, x, long_limit)
+            t = _long_vote(t, r[7][i], one, x, long_limit)
+            t = _long_vote(t, r[8][i], one, x, long_limit)
+            t = _long_vote(t, r[9][i], one, x, long_limit)
+            t = _long_vote(t, r[10][i], one, x, long_limit)
+            t = _long_vote(t, r[11][i], one, x, long_limit)
+            t = _long_vote(t, r[12][i], one, x, long_limit)
+            t = _long_vote(t, r[13][i], one, x, long_limit)
+            t = _long_vote(t, r[14][i], one, x, long_limit)
+            t = _long_vote(t, r[15][i], one, x, long_limit)
+            result[i] = mean if _long_run_passes(t, presence) else np.float32(np.nan)
     else:
-        c0, c1, c2, c3, c4, c5, c6, c7 = _frame_rows(weights, slots, first, last)
+        w = _frame_rows(weights, slots, first, last)
         for i in range(last - first):
-            a, b, c = np.float32(v0[i]), np.float32(v1[i]), np.float32(v2[i])
-            w = np.float32(c0[i])
-            sums = _add_frame(_NO_SUMS, v0[i], w, d0 * w, a, b, c, limit)
-            w = np.float32(c1[i])
-            sums = _add_frame(sums, v1[i], w, d1 * w, a, b, c, limit)
-            w = np.float32(c2[i])
-            sums = _add_frame(sums, v2[i], w, d2 * w, a, b, c, limit)
-            w = np.float32(c3[i])
-            sums = _add_frame(sums, v3[i], w, d3 * w, a, b, c, limit)
-            w = np.float32(c4[i])
-            sums = _add_frame(sums, v4[i], w, d4 * w, a, b, c, limit)
-            w = np.float32(c5[i])
-            sums = _add_frame(sums, v5[i], w, d5 * w, a, b, c, limit)
-            w = np.float32(c6[i])
-            sums = _add_frame(sums, v6[i], w, d6 * w, a, b, c, limit)
-            w = np.float32(c7[i])
-            sums = _add_frame(sums, v7[i], w, d7 * w, a, b, c, limit)
-            result[i] = _chosen(sums, a, b, c, persistence)
+            a, b, c = np.float32(r[0][i]), np.float32(r[1][i]), np.float32(r[2][i])
+            s = _NO_SUMS
+            s = _add_frame(s, r[0][i], np.float32(w[0][i]), d[0], h[0], a, b, c, limit)
+            s = _add_frame(s, r[1][i], np.float32(w[1][i]), d[1], h[1], a, b, c, limit)
+            s = _add_frame(s, r[2][i], np.float32(w[2][i]), d[2], h[2], a, b, c, limit)
+            s = _add_frame(s, r[3][i], np.float32(w[3][i]), d[3], h[3], a, b, c, limit)
+            s = _add_frame(s, r[4][i], np.float32(w[4][i]), d[4], h[4], a, b, c, limit)
+            s = _add_frame(s, r[5][i], np.float32(w[5][i]), d[5], h[5], a, b, c, limit)
+            s = _add_frame(s, r[6][i], np.float32(w[6][i]), d[6], h[6], a, b, c, limit)
+            s = _add_frame(s, r[7][i], np.float32(w[7][i]), d[7], h[7], a, b, c, limit)
+            x, mean = _chosen(s, a, b, c, persistence)
+            t = _NO_LONG_RUN
+            t = _long_vote(t, r[0][i], np.float32(w[0][i]), x, long_limit)
+            t = _long_vote(t, r[1][i], np.float32(w[1][i]), x, long_limit)
+            t = _long_vote(t, r[2][i], np.float32(w[2][i]), x, long_limit)
+            t = _long_vote(t, r[3][i], np.float32(w[3][i]), x, long_limit)
+            t = _long_vote(t, r[4][i], np.float32(w[4][i]), x, long_limit)
+            t = _long_vote(t, r[5][i], np.float32(w[5][i]), x, long_limit)
+            t = _long_vote(t, r[6][i], np.float32(w[6][i]), x, long_limit)
+            t = _long_vote(t, r[7][i], np.float32(w[7][i]), x, long_limit)
+            t = _long_vote(t, r[8][i], np.float32(w[8][i]), x, long_limit)
+            t = _long_vote(t, r[9][i], np.float32(w[9][i]), x, long_limit)
+            t = _long_vote(t, r[10][i], np.float32(w[10][i]), x, long_limit)
+            t = _long_vote(t, r[11][i], np.float32(w[11][i]), x, long_limit)
+            t = _long_vote(t, r[12][i], np.float32(w[12][i]), x, long_limit)
+            t = _long_vote(t, r[13][i], np.float32(w[13][i]), x, long_limit)
+            t = _long_vote(t, r[14][i], np.float32(w[14][i]), x, long_limit)
+            t = _long_vote(t, r[15][i], np.float32(w[15][i]), x, long_limit)
+            result[i] = mean if _long_run_passes(t, presence) else np.float32(np.nan)
 
 
-def _frame_rows(
-    frames: np.ndarray, slots: np.ndarray, first: int, last: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The eight stored frames' pixels first..last-1, newest first, as views indexed from 0."""
+def _frame_rows(frames: np.ndarray, slots: np.ndarray, first: int, last: int) -> tuple[np.ndarray, ...]:
+    """The LONG_RUN stored frames' pixels first..last-1, newest first, as views indexed from 0."""
     return (
         frames[slots[0], first:last],
         frames[slots[1], first:last],
@@ -327,72 +435,146 @@ def _frame_rows(
         frames[slots[5], first:last],
         frames[slots[6], first:last],
         frames[slots[7], first:last],
+        frames[slots[8], first:last],
+        frames[slots[9], first:last],
+        frames[slots[10], first:last],
+        frames[slots[11], first:last],
+        frames[slots[12], first:last],
+        frames[slots[13], first:last],
+        frames[slots[14], first:last],
+        frames[slots[15], first:last],
     )
 
 
-_NO_SUMS = (np.float32(0.0),) * 13  # per candidate a, b, c: support, trust, weight, offset; then valid frames
+def _ages(per_age: np.ndarray) -> tuple[np.float32, ...]:
+    """The first MAX_HISTORY values per age (those of the short window) as scalars, kept in registers."""
+    return (
+        per_age[0],
+        per_age[1],
+        per_age[2],
+        per_age[3],
+        per_age[4],
+        per_age[5],
+        per_age[6],
+        per_age[7],
+    )
+
+
+# Short window, per candidate (a, b, c): support (frames), trust (their confidence), against (the
+# conflicting frames' confidence), weight and offset (the average's).
+_NO_VOTES: tuple[np.float32, ...] = (np.float32(0.0),) * 5
+_NO_SUMS: tuple[tuple[np.float32, ...], ...] = (_NO_VOTES, _NO_VOTES, _NO_VOTES)
+# Long run, for the chosen candidate: for and against (confidence), the conflicting frames seen so far
+# (newest first), the supporting frames older than one of them (> 0: interleaved), the valid frames.
+_NO_LONG_RUN: tuple[np.float32, ...] = (np.float32(0.0),) * 5
+
+
+def _passes(votes: tuple[np.float32, ...], x: np.float32, persistence: np.float32) -> bool:
+    """A candidate's short-window rules: persistence and the disagree rule."""
+    support, trust, against, _, _ = votes
+    return bool((x != np.float32(HOLE)) & (support >= persistence) & (trust >= against))
 
 
 def _chosen(
-    sums: tuple[np.float32, ...], a: np.float32, b: np.float32, c: np.float32, persistence: np.float32
-) -> np.float32:
+    sums: tuple[tuple[np.float32, ...], ...],
+    a: np.float32,
+    b: np.float32,
+    c: np.float32,
+    persistence: np.float32,
+) -> tuple[np.float32, np.float32]:
     """Each candidate's test, then a choice, newest first, without a branch to mispredict: the chosen
-    candidate's average rounded to 1/16 px, or NaN."""
+    candidate (HOLE: none) and its average rounded to 1/16 px (NaN: none)."""
     zero = np.float32(0.0)
-    hole = np.float32(HOLE)
-    support_a, trust_a, weight_a, offset_a, support_b, trust_b, weight_b, offset_b = sums[:8]
-    support_c, trust_c, weight_c, offset_c, valid = sums[8:]
-    mean_a = a + (offset_a / weight_a if weight_a > zero else zero)
-    mean_b = b + (offset_b / weight_b if weight_b > zero else zero)
-    mean_c = c + (offset_c / weight_c if weight_c > zero else zero)
-    pass_a = (a != hole) & (support_a >= persistence) & (valid - support_a <= support_a)
-    best = trust_a if pass_a else np.float32(-1.0)
+    votes_a, votes_b, votes_c = sums
+    mean_a = a + (votes_a[4] / votes_a[3] if votes_a[3] > zero else zero)
+    mean_b = b + (votes_b[4] / votes_b[3] if votes_b[3] > zero else zero)
+    mean_c = c + (votes_c[4] / votes_c[3] if votes_c[3] > zero else zero)
+    pass_a = _passes(votes_a, a, persistence)
+    best = votes_a[1] if pass_a else np.float32(-1.0)
+    x = a if pass_a else np.float32(HOLE)
     mean = mean_a if pass_a else np.float32(np.nan)
-    pass_b = (b != hole) & (support_b >= persistence) & (valid - support_b <= support_b) & (trust_b > best)
-    best = trust_b if pass_b else best
+    pass_b = _passes(votes_b, b, persistence) & (votes_b[1] > best)
+    best = votes_b[1] if pass_b else best
+    x = b if pass_b else x
     mean = mean_b if pass_b else mean
-    pass_c = (c != hole) & (support_c >= persistence) & (valid - support_c <= support_c) & (trust_c > best)
+    pass_c = _passes(votes_c, c, persistence) & (votes_c[1] > best)
+    x = c if pass_c else x
     mean = mean_c if pass_c else mean
-    return np.float32(np.rint(mean) * np.float32(1.0 / SUBPIXELS))  # NaN stays NaN
+    return x, np.float32(np.rint(mean) * np.float32(1.0 / SUBPIXELS))  # NaN stays NaN
 
 
-def _agree(
-    support: np.float32,
-    trust: np.float32,
-    weight_sum: np.float32,
-    offset: np.float32,
+def _long_run_passes(long_run: tuple[np.float32, ...], presence: np.float32) -> bool:
+    """The long-run rules: presence, and a majority when supporters and conflicts interleave (a pixel
+    that keeps switching between two surfaces, half and half, is output as neither)."""
+    long_for, long_against, _, interleaved, valid = long_run
+    return bool((valid >= presence) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
+
+
+def _long_vote(
+    long_run: tuple[np.float32, ...], value: np.int16, confidence: np.float32, x: np.float32, limit: np.float32
+) -> tuple[np.float32, ...]:
+    """The chosen candidate `x`'s long-run sums after one frame's value (1/16 px; `limit` too: twice
+    the short window's, so that noise spread wider than `delta` still counts as one surface)."""
+    long_for, long_against, conflicts, interleaved, frames = long_run
+    v = np.float32(value)
+    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    agree = np.float32(1.0) if abs(v - x) <= limit else np.float32(0.0)
+    conflict = valid - valid * agree
+    return (
+        long_for + agree * confidence,
+        long_against + conflict * confidence,
+        conflicts + conflict,
+        interleaved + agree * conflicts,  # frames come newest first: a conflict counted is a newer one
+        frames + valid,
+    )
+
+
+def _vote(
+    votes: tuple[np.float32, ...],
     v: np.float32,
+    valid: np.float32,
     candidate: np.float32,
     confidence: np.float32,
-    weight: np.float32,
+    decay: np.float32,
+    short: np.float32,
     limit: np.float32,
-) -> tuple[np.float32, np.float32, np.float32, np.float32]:
-    """One candidate's sums after one frame's value `v`: support (frames within `limit`, 1/16 px),
-    confidence-weighted support, weight and weighted offset."""
+) -> tuple[np.float32, ...]:
+    """One candidate's short-window sums after one frame's value `v` (1/16 px; `limit` too): a frame
+    within `limit` supports it, another valid frame conflicts; `short` 0: the frame is outside `history`."""
+    support, trust, against, weight, offset = votes
     d = v - candidate
-    agree = np.float32(1.0) if abs(d) <= limit else np.float32(0.0)
-    return support + agree, trust + agree * confidence, weight_sum + agree * weight, offset + agree * weight * d
+    agree = (np.float32(1.0) if abs(d) <= limit else np.float32(0.0)) * short
+    conflict = valid * short - agree
+    weighted = decay * confidence
+    return (
+        support + agree,
+        trust + agree * confidence,
+        against + conflict * confidence,
+        weight + agree * weighted,
+        offset + agree * weighted * d,
+    )
 
 
 def _add_frame(
-    sums: tuple[np.float32, ...],
+    sums: tuple[tuple[np.float32, ...], ...],
     value: np.int16,
     confidence: np.float32,
-    weight: np.float32,
+    decay: np.float32,
+    short: np.float32,
     a: np.float32,
     b: np.float32,
     c: np.float32,
     limit: np.float32,
-) -> tuple[np.float32, ...]:
-    """One frame's value into a pixel's sums: `_agree` for candidates a, b and c, then the valid frames.
-    A HOLE agrees with a HOLE only, and a HOLE candidate never passes."""
+) -> tuple[tuple[np.float32, ...], ...]:
+    """One frame's value into a pixel's short-window sums: `_vote` for candidates a, b and c. A HOLE
+    agrees with a HOLE only, and a HOLE candidate never passes."""
     v = np.float32(value)
-    valid = sums[12] + (np.float32(1.0) if value != HOLE else np.float32(0.0))
+    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    votes_a, votes_b, votes_c = sums
     return (
-        *_agree(sums[0], sums[1], sums[2], sums[3], v, a, confidence, weight, limit),
-        *_agree(sums[4], sums[5], sums[6], sums[7], v, b, confidence, weight, limit),
-        *_agree(sums[8], sums[9], sums[10], sums[11], v, c, confidence, weight, limit),
-        valid,
+        _vote(votes_a, v, valid, a, confidence, decay, short, limit),
+        _vote(votes_b, v, valid, b, confidence, decay, short, limit),
+        _vote(votes_c, v, valid, c, confidence, decay, short, limit),
     )
 
 
@@ -410,10 +592,14 @@ def _kernels() -> dict[str, Callable[..., Any]]:
 
     module = globals()  # the parallel kernel calls the compiled ones below it, and numba's prange
     module["prange"] = numba.prange
-    module["_agree"] = numba.njit(cache=True, inline="always")(_agree)
+    module["_vote"] = numba.njit(cache=True, inline="always")(_vote)
+    module["_long_vote"] = numba.njit(cache=True, inline="always")(_long_vote)
+    module["_long_run_passes"] = numba.njit(cache=True, inline="always")(_long_run_passes)
+    module["_passes"] = numba.njit(cache=True, inline="always")(_passes)
     module["_add_frame"] = numba.njit(cache=True, inline="always")(_add_frame)
     module["_chosen"] = numba.njit(cache=True, inline="always")(_chosen)
     module["_frame_rows"] = numba.njit(cache=True, inline="always")(_frame_rows)
+    module["_ages"] = numba.njit(cache=True, inline="always")(_ages)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
     return {
         "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),

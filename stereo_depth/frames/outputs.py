@@ -70,7 +70,9 @@ def filtered_disparity(
     if not params.temporal_filter:
         temporal.reset()
         return result.disparity
-    return temporal.apply(result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), params.temporal)
+    return temporal.apply(
+        result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), params.temporal, view=result.left_rect
+    )
 
 
 # ---------------------------------------------------------------- match outputs
