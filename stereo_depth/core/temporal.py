@@ -41,6 +41,15 @@ px since the previous frame (the median over tiles of their phase correlation, s
 still view does not count): the camera turns or moves, and the history no longer lies under the same
 pixels. It then stands aside: frames pass unfiltered until `persistence` frames of a still view refill
 the history, so that without odometry the filter never makes a moving camera's depth worse.
+
+With odometry (`CameraMotion`: the rectified left camera's pose at each frame), the history moves with
+the camera instead: before the vote, each remembered frame is projected into this frame's view through
+its own depth and the relative pose between the two frames (a forward warp: the nearest point wins a
+pixel, one-pixel cracks are closed), so a still surface agrees with itself while the robot drives or
+turns, and the image test stands down while the odometry explains the motion. Each frame is moved from
+where it was taken, never from a moved copy, so the error does not build up. A frame without a pose
+(its odometry late) is voted on unmoved, with the image test; one whose odometry stopped or jumped
+restarts everything.
 ROS-free; the kernels are numba-compiled on first use (census_sgm's dependency), then cached.
 """
 
@@ -51,11 +60,12 @@ import itertools
 from collections import deque
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
+from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import ParameterError
 
 MAX_HISTORY = 8  # frames: RealSense's "k of the last 8"
@@ -64,6 +74,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
 VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
 VIEW_TILES = 3  # in 3 x 3 tiles
+STILL = 1e-9  # a relative pose this close to the identity (every entry) leaves a frame where it is
 
 
 @dataclass(frozen=True)
@@ -97,13 +108,50 @@ class TemporalSettings:
         return self
 
 
+class Projection(NamedTuple):
+    """The rectified left camera at the disparity's size: what turns a disparity into a point and back."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    fb: float  # fx * baseline, px m: depth = fb / (disparity - offset)
+    offset: float  # cx_left - cx_right, px
+
+    @classmethod
+    def of(cls, camera: StereoCamera) -> Projection:
+        return cls(
+            camera.fx, camera.fy, camera.cx_left, camera.cy, camera.fx * camera.baseline, camera.disparity_offset
+        )
+
+
+class CameraMotion(NamedTuple):
+    """Where a frame was taken: the rectified left camera's pose in the odometry frame (4x4 float64, the
+    camera's points to the odometry frame's; None: not known for this frame) and its projection; `forget`:
+    the odometry stopped or jumped, so the history no longer lines up."""
+
+    pose: np.ndarray | None
+    projection: Projection
+    forget: bool = False
+
+
 def compile_kernels() -> None:
     """Compile the kernels (or load them from numba's cache) for frames with and without confidence now,
     so that the first frame does not wait for them (a node would drop the frames arriving meanwhile)."""
-    for confidence in (None, np.ones((2, 2), np.float32)):
+    for confidence in (None, True):
         temporal = TemporalFilter()
+        projection = Projection(1.0, 1.0, 0.5, 0.5, 1.0, 0.0)
         for stamp in (1, 2):
-            temporal.apply(np.ones((2, 2), np.float32), confidence, stamp, None, TemporalSettings(motion_reset=0.5))
+            pose = np.eye(4)
+            pose[0, 3] = stamp  # moved: the history's move runs
+            temporal.apply(
+                np.ones((3, 3), np.float32),
+                None if confidence is None else np.ones((3, 3), np.float32),
+                stamp,
+                None,
+                TemporalSettings(motion_reset=0.5),
+                motion=CameraMotion(pose, projection),
+            )
 
 
 def _view_shift(previous: np.ndarray, current: np.ndarray) -> float:
@@ -141,9 +189,11 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        # (LONG_RUN, pixels): a ring of the last frames, rows before the last restart HOLE
+        # (2 * LONG_RUN, pixels): a ring of the last frames, rows before the last restart HOLE; then, row
+        # LONG_RUN + r, frame r moved into the newest frame's view (with odometry)
         self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, or before a restart
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
+        self._poses: list[np.ndarray | None] = [None] * LONG_RUN  # per ring row: where its frame was taken
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
@@ -154,6 +204,7 @@ class TemporalFilter:
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
         self._values = self._weights = self._view = None
+        self._poses = [None] * LONG_RUN
         self._head, self._frames, self._calibration = -1, 0, None
         self._standing_aside = False
         self._stamps.clear()
@@ -167,11 +218,13 @@ class TemporalFilter:
         settings: TemporalSettings,
         *,
         view: np.ndarray | None = None,
+        motion: CameraMotion | None = None,
     ) -> np.ndarray:
         """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed.
-        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test."""
+        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test.
+        `motion`: where the frame was taken (odometry); None: no odometry."""
         kernels = _kernels()
-        turned = self._view_moved(view, settings.ego_motion)
+        pose = None if motion is None else motion.pose
         pixels = disparity.size
         if (
             self._values is None
@@ -179,22 +232,31 @@ class TemporalFilter:
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((LONG_RUN, pixels), HOLE, np.int16)
-            self._weights = None if confidence is None else np.zeros((LONG_RUN, pixels), np.uint8)
+            self._values = np.full((2 * LONG_RUN, pixels), HOLE, np.int16)
+            self._weights = None if confidence is None else np.zeros((2 * LONG_RUN, pixels), np.uint8)
             self._head, self._frames = -1, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
+        explained = pose is not None and self._frames > 0 and self._poses[previous] is not None
+        turned = self._view_moved(view, settings.ego_motion) and not explained  # odometry explains the shift
+        ring = (self._head - np.arange(LONG_RUN)) % LONG_RUN  # the rows, newest first
+        slots = ring
+        if pose is not None and motion is not None and self._frames:
+            slots = self._moved_history(ring, pose, motion.projection, disparity.shape[-1], settings.delta)
         both, changed = kernels["store"](
             disparity.reshape(-1),
             None if confidence is None else confidence.reshape(-1),
             self._values[self._head],
             None if self._weights is None else self._weights[self._head],
-            self._values[previous] if self._frames and settings.motion_reset > 0 else None,  # the motion test's
+            self._values[slots[1]] if self._frames and settings.motion_reset > 0 else None,  # the motion test's
             np.float32(settings.delta),
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
-        if self._frames == 0 or moved or turned or self._stamp_breaks(stamp_ns):
-            self._values[np.arange(LONG_RUN) != self._head] = HOLE
+        forget = motion is not None and motion.forget
+        if self._frames == 0 or moved or turned or forget or self._stamp_breaks(stamp_ns):
+            self._values[ring[1:]] = HOLE
+            slots = ring
             self._frames = 0
+        self._poses[self._head] = pose
         self._standing_aside = turned or self._standing_aside
         self._stamps.append(stamp_ns)
         self._calibration = calibration
@@ -203,7 +265,7 @@ class TemporalFilter:
         kernels["filter"](
             self._values,
             self._weights,
-            (self._head - np.arange(LONG_RUN)) % LONG_RUN,  # the rows, newest first
+            slots,
             _decays(settings.alpha, settings.history),
             (np.arange(MAX_HISTORY) < settings.history).astype(np.float32),  # the short window
             np.float32(settings.delta),
@@ -216,6 +278,39 @@ class TemporalFilter:
             return disparity.astype(np.float32, copy=True)  # no worse than no filter while the view moves
         self._standing_aside = False
         return out.reshape(disparity.shape)
+
+    def _moved_history(
+        self, ring: np.ndarray, pose: np.ndarray, projection: Projection, width: int, delta: float
+    ) -> np.ndarray:
+        """The rows to vote with, newest first: each remembered frame with a pose that differs from this
+        frame's moved into this view (in its row of the second half), the others as they are."""
+        assert self._values is not None
+        here = np.linalg.inv(pose)
+        slots = ring.copy()
+        sources, transforms = [], []
+        for age in range(1, min(self._frames, LONG_RUN - 1) + 1):
+            then = self._poses[ring[age]]
+            if then is None:
+                continue
+            relative = here @ then  # the camera then, in this frame's camera
+            if np.abs(relative - np.eye(4)).max() <= STILL:
+                continue
+            sources.append(ring[age])
+            transforms.append(relative[:3])
+            slots[age] = LONG_RUN + ring[age]
+        if sources:
+            weights = self._weights if self._weights is not None else np.zeros((2 * LONG_RUN, 1), np.uint8)
+            _kernels()["warp"](
+                self._values,
+                weights,
+                self._weights is not None,
+                np.array(sources, np.int64),
+                np.array(transforms, np.float64),
+                np.array(projection, np.float64),
+                width,
+                np.int32(round(delta * SUBPIXELS)),
+            )
+        return slots
 
     def _view_moved(self, view: np.ndarray | None, limit: float) -> bool:
         """Whether the view shifted by more than `limit` px since the last frame (the camera turned or
@@ -283,6 +378,137 @@ def _store(
             both += 1
             changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
+
+
+def _warp_rows(
+    values: np.ndarray,
+    weights: np.ndarray,
+    weighted: bool,
+    sources: np.ndarray,
+    transforms: np.ndarray,
+    projection: np.ndarray,
+    width: int,
+    limit: np.int32,
+) -> None:
+    """Each row of `sources` moved into the newest frame's view, into row LONG_RUN + its own (and its
+    confidence, when `weighted`): `transforms[k]` (3x4) maps the points of frame k's camera to this one's;
+    `projection`: fx, fy, cx, cy, fb, offset. One thread a row, so the nearest point wins a pixel
+    whatever the threads."""
+    for k in prange(sources.size):
+        row = sources[k]
+        _warp_row(
+            values[row],
+            values[LONG_RUN + row],
+            weights[row] if weighted else weights[0],
+            weights[LONG_RUN + row] if weighted else weights[0],
+            weighted,
+            transforms[k],
+            projection,
+            width,
+            limit,
+        )
+
+
+def _warp_row(
+    source: np.ndarray,
+    target: np.ndarray,
+    source_weights: np.ndarray,
+    target_weights: np.ndarray,
+    weighted: bool,
+    transform: np.ndarray,
+    projection: np.ndarray,
+    width: int,
+    limit: np.int32,
+) -> None:
+    """One frame's disparities (1/16 px) forward-warped: each valid pixel's point, from its disparity,
+    moved by `transform` and projected; where several land on a pixel the nearest (largest disparity)
+    wins; then the cracks a forward warp leaves where the view stretches are closed. Per image row, the
+    projection first (branch-free, so it vectorises), then the writes."""
+    f32 = np.float32
+    fx, fy, cx, cy = f32(projection[0]), f32(projection[1]), f32(projection[2]), f32(projection[3])
+    inverse_fb, offset = f32(1.0 / projection[4]), f32(projection[5])
+    r = transform.astype(np.float32)
+    height = source.size // width
+    target[:] = HOLE
+    places = np.empty(width, np.int32)
+    moved = np.empty(width, np.int16)
+    top, right, bottom = f32(0.0), f32(width), f32(height)
+    for v in range(height):
+        yn = (f32(v) - cy) / fy
+        row_x, row_y, row_z = r[0, 1] * yn + r[0, 2], r[1, 1] * yn + r[1, 2], r[2, 1] * yn + r[2, 2]
+        start = v * width
+        for u in range(width):
+            value = source[start + u]
+            d = f32(value) * f32(1.0 / SUBPIXELS) - offset
+            s = d * inverse_fb  # inverse depth, 1/m: the point is (xn, yn, 1) / s
+            xn = (f32(u) - cx) / fx
+            x = r[0, 0] * xn + row_x + r[0, 3] * s
+            y = r[1, 0] * xn + row_y + r[1, 3] * s
+            z = r[2, 0] * xn + row_z + r[2, 3] * s
+            near = f32(1.0) / z
+            column = fx * x * near + cx + f32(0.5)
+            line = fy * y * near + cy + f32(0.5)
+            fixed = (d * near + offset) * f32(SUBPIXELS) + f32(0.5)
+            ok = (
+                (value != HOLE)
+                & (d > f32(0.0))
+                & (z > f32(1e-6))
+                & (column >= top)
+                & (column < right)
+                & (line >= top)
+                & (line < bottom)
+                & (fixed < f32(32767.0))
+            )
+            column = column if ok else top
+            line = line if ok else top
+            places[u] = np.int32(line) * np.int32(width) + np.int32(column) if ok else np.int32(-1)
+            moved[u] = np.int16(fixed) if ok else HOLE
+        for u in range(width):
+            q = places[u]
+            if q >= 0 and moved[u] > target[q]:
+                target[q] = moved[u]
+                if weighted:
+                    target_weights[q] = source_weights[start + u]
+    _close_cracks(target, target_weights, weighted, width, limit)
+
+
+def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width: int, limit: np.int32) -> None:
+    """A hole between two valid neighbours within `limit` (left and right, else above and below) takes
+    their mean, and the lower of their confidences. Row by row, from a copy of the row, on row views
+    indexed from 0 (branch-free and without negative indices, so it vectorises); a hole filled in one
+    row counts as valid for the row below."""
+    height = values.size // width
+    row = np.empty(width, np.int32)
+    filled = np.empty(width, np.uint8)  # per pixel: 0 kept, 1 from left and right, 2 from above and below
+    for v in range(1, height - 1):
+        above = values[(v - 1) * width : v * width]
+        here = values[v * width : (v + 1) * width]
+        below = values[(v + 1) * width : (v + 2) * width]
+        for u in range(width):
+            row[u] = here[u]
+        for u in range(width - 2):
+            left, centre, right = row[u], row[u + 1], row[u + 2]
+            up, down = np.int32(above[u + 1]), np.int32(below[u + 1])
+            across = (left != HOLE) & (right != HOLE) & (np.abs(left - right) <= limit)
+            along = (up != HOLE) & (down != HOLE) & (np.abs(up - down) <= limit)
+            fill = (centre == HOLE) & (across | along)
+            mean = (left + right) >> 1 if across else (up + down) >> 1
+            here[u + 1] = np.int16(mean) if fill else np.int16(centre)
+            filled[u + 1] = (np.uint8(1) if across else np.uint8(2)) if fill else np.uint8(0)
+        if weighted:
+            _crack_weights(weights, filled, v, width)
+
+
+def _crack_weights(weights: np.ndarray, filled: np.ndarray, v: int, width: int) -> None:
+    """The confidences of row `v`'s closed cracks (`filled`: 1 from left and right, 2 from above and below)."""
+    above = weights[(v - 1) * width : v * width]
+    here = weights[v * width : (v + 1) * width]
+    below = weights[(v + 1) * width : (v + 2) * width]
+    for u in range(1, width - 1):
+        if filled[u] == 1:
+            here[u] = min(here[u - 1], here[u + 1])
+        elif filled[u] == 2:
+            here[u] = min(above[u], below[u])
 
 
 def _decays(alpha: float, history: int) -> np.ndarray:
@@ -601,7 +827,12 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["_frame_rows"] = numba.njit(cache=True, inline="always")(_frame_rows)
     module["_ages"] = numba.njit(cache=True, inline="always")(_ages)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
+    module["_crack_weights"] = numba.njit(cache=True, nogil=True)(_crack_weights)
+    module["_close_cracks"] = numba.njit(cache=True, nogil=True, inline="always")(_close_cracks)
+    module["_warp_row"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_warp_row)  # no zero checks:
+    # a division by zero gives inf, which the projection's tests reject, and the loop vectorises
     return {
         "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
         "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
+        "warp": numba.njit(cache=True, nogil=True, parallel=True)(_warp_rows),
     }
