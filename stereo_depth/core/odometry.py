@@ -138,7 +138,9 @@ def pose_matrix(position: tuple[float, float, float] | np.ndarray, orientation: 
 
 
 def _lerp(a: tuple[float, ...], b: tuple[float, ...], share: float) -> np.ndarray:
-    return np.asarray(a) + (np.asarray(b) - np.asarray(a)) * share
+    start = np.asarray(a, np.float64)
+    between: np.ndarray = start + (np.asarray(b, np.float64) - start) * share
+    return between
 
 
 def _slerp(a: tuple[float, ...], b: tuple[float, ...], share: float) -> tuple[float, ...]:

@@ -189,9 +189,9 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        # (2 * LONG_RUN, pixels): a ring of the last frames, rows before the last restart HOLE; then, row
+        # (2 * LONG_RUN, pixels): a ring of the last frames, rows before the last restart UNSEEN; then, row
         # LONG_RUN + r, frame r moved into the newest frame's view (with odometry)
-        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, or before a restart
+        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid; UNSEEN: before a restart, out of view
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
         self._poses: list[np.ndarray | None] = [None] * LONG_RUN  # per ring row: where its frame was taken
         self._head = -1  # row of the newest frame
@@ -232,7 +232,7 @@ class TemporalFilter:
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((2 * LONG_RUN, pixels), HOLE, np.int16)
+            self._values = np.full((2 * LONG_RUN, pixels), UNSEEN, np.int16)
             self._weights = None if confidence is None else np.zeros((2 * LONG_RUN, pixels), np.uint8)
             self._head, self._frames = -1, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
@@ -253,7 +253,7 @@ class TemporalFilter:
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
         forget = motion is not None and motion.forget
         if self._frames == 0 or moved or turned or forget or self._stamp_breaks(stamp_ns):
-            self._values[ring[1:]] = HOLE
+            self._values[ring[1:]] = UNSEEN
             slots = ring
             self._frames = 0
         self._poses[self._head] = pose
@@ -270,7 +270,7 @@ class TemporalFilter:
             (np.arange(MAX_HISTORY) < settings.history).astype(np.float32),  # the short window
             np.float32(settings.delta),
             np.float32(settings.persistence),
-            np.float32(settings.presence * min(self._frames, LONG_RUN)),
+            np.float32(settings.presence),
             out,
             _threads(),
         )
@@ -341,7 +341,9 @@ class TemporalFilter:
 
 
 # ----------------------------------------------------------------------------------------------- kernels
-# The history holds 1/16 px fixed point (int16, HOLE where invalid) and the confidence as 0..255 (uint8):
+# The history holds 1/16 px fixed point (int16: HOLE where invalid, UNSEEN where the pixel was not in the
+# view: a frame before the last restart, or one moved from where it did not see this pixel) and the
+# confidence as 0..255 (uint8):
 # a quarter of float32's bytes to stream through per frame. Always LONG_RUN rows, those before a restart
 # HOLE, so the kernel's frame loop is written out and each pixel's sums stay in registers (a loop over the
 # frames inside the pixel loop would keep it from vectorising). No fastmath: its contractions (FMA) differ
@@ -350,6 +352,7 @@ class TemporalFilter:
 
 SUBPIXELS = 16  # the history's and the output's step, 1/16 px: DisparityImage's delta_d, OpenCV's fixed point
 HOLE = np.int16(-32768)
+UNSEEN = np.int16(-32767)  # every value above it is a disparity
 CONFIDENCE_LEVELS = 255
 prange = range  # numba.prange once the kernels are compiled (_kernels)
 
@@ -374,7 +377,7 @@ def _store(
         values[p] = fixed
         if weights is not None and confidence is not None:
             weights[p] = np.uint8(np.rint(min(max(confidence[p], 0.0), 1.0) * CONFIDENCE_LEVELS))
-        if previous is not None and fixed != HOLE and previous[p] != HOLE:
+        if previous is not None and fixed != HOLE and previous[p] > UNSEEN:
             both += 1
             changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
@@ -429,7 +432,8 @@ def _warp_row(
     inverse_fb, offset = f32(1.0 / projection[4]), f32(projection[5])
     r = transform.astype(np.float32)
     height = source.size // width
-    target[:] = HOLE
+    target[:] = UNSEEN
+    fallback = _mean_disparity(source) * f32(1.0 / SUBPIXELS)  # where the frame's holes were: its mean depth
     places = np.empty(width, np.int32)
     moved = np.empty(width, np.int16)
     top, right, bottom = f32(0.0), f32(width), f32(height)
@@ -439,7 +443,8 @@ def _warp_row(
         start = v * width
         for u in range(width):
             value = source[start + u]
-            d = f32(value) * f32(1.0 / SUBPIXELS) - offset
+            valid = value > UNSEEN
+            d = (f32(value) * f32(1.0 / SUBPIXELS) if valid else fallback) - offset
             s = d * inverse_fb  # inverse depth, 1/m: the point is (xn, yn, 1) / s
             xn = (f32(u) - cx) / fx
             x = r[0, 0] * xn + row_x + r[0, 3] * s
@@ -450,8 +455,7 @@ def _warp_row(
             line = fy * y * near + cy + f32(0.5)
             fixed = (d * near + offset) * f32(SUBPIXELS) + f32(0.5)
             ok = (
-                (value != HOLE)
-                & (d > f32(0.0))
+                (d > f32(0.0))
                 & (z > f32(1e-6))
                 & (column >= top)
                 & (column < right)
@@ -462,14 +466,24 @@ def _warp_row(
             column = column if ok else top
             line = line if ok else top
             places[u] = np.int32(line) * np.int32(width) + np.int32(column) if ok else np.int32(-1)
-            moved[u] = np.int16(fixed) if ok else HOLE
+            moved[u] = np.int16(fixed) if valid else HOLE  # a hole marks the view it was in
         for u in range(width):
             q = places[u]
-            if q >= 0 and moved[u] > target[q]:
+            if q >= 0 and (moved[u] > target[q] or target[q] == UNSEEN):
                 target[q] = moved[u]
                 if weighted:
                     target_weights[q] = source_weights[start + u]
     _close_cracks(target, target_weights, weighted, width, limit)
+
+
+def _mean_disparity(values: np.ndarray) -> np.float32:
+    """The mean of a frame's valid values (1/16 px) over every 16th pixel; 0 when none."""
+    total, count = np.float32(0.0), np.float32(0.0)
+    for p in range(0, values.size, 16):
+        valid = values[p] > UNSEEN
+        total += np.float32(values[p]) if valid else np.float32(0.0)
+        count += np.float32(1.0) if valid else np.float32(0.0)
+    return total / count if count > np.float32(0.0) else np.float32(0.0)
 
 
 def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width: int, limit: np.int32) -> None:
@@ -489,9 +503,9 @@ def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width
         for u in range(width - 2):
             left, centre, right = row[u], row[u + 1], row[u + 2]
             up, down = np.int32(above[u + 1]), np.int32(below[u + 1])
-            across = (left != HOLE) & (right != HOLE) & (np.abs(left - right) <= limit)
-            along = (up != HOLE) & (down != HOLE) & (np.abs(up - down) <= limit)
-            fill = (centre == HOLE) & (across | along)
+            across = (left > UNSEEN) & (right > UNSEEN) & (np.abs(left - right) <= limit)
+            along = (up > UNSEEN) & (down > UNSEEN) & (np.abs(up - down) <= limit)
+            fill = (centre <= UNSEEN) & (across | along)
             mean = (left + right) >> 1 if across else (up + down) >> 1
             here[u + 1] = np.int16(mean) if fill else np.int16(centre)
             filled[u + 1] = (np.uint8(1) if across else np.uint8(2)) if fill else np.uint8(0)
@@ -541,10 +555,10 @@ def _filter_pixels(
     offset of its supporters, so equal values average to themselves exactly), rounded to 1/16 px; none
     chosen, or vetoed: invalid.
 
-    `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are HOLE: they vote for
+    `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are UNSEEN: they vote for
     nothing); `short[age]` 1 for the frames of the short window, else 0 (and `decays[age]` 0).
-    `presence`: the valid frames a pixel needs. The pixels are cut into `parts` runs, one per thread;
-    each pixel's result is the same whatever the count."""
+    `presence`: the share of the frames that saw a pixel it must be valid in. The pixels are cut into
+    `parts` runs, one per thread; each pixel's result is the same whatever the count."""
     for part in prange(parts):
         _filter_range(
             values,
@@ -691,14 +705,15 @@ def _ages(per_age: np.ndarray) -> tuple[np.float32, ...]:
 _NO_VOTES: tuple[np.float32, ...] = (np.float32(0.0),) * 5
 _NO_SUMS: tuple[tuple[np.float32, ...], ...] = (_NO_VOTES, _NO_VOTES, _NO_VOTES)
 # Long run, for the chosen candidate: for and against (confidence), the conflicting frames seen so far
-# (newest first), the supporting frames older than one of them (> 0: interleaved), the valid frames.
-_NO_LONG_RUN: tuple[np.float32, ...] = (np.float32(0.0),) * 5
+# (newest first), the supporting frames older than one of them (> 0: interleaved), the valid frames, the
+# frames that saw the pixel (not UNSEEN).
+_NO_LONG_RUN: tuple[np.float32, ...] = (np.float32(0.0),) * 6
 
 
 def _passes(votes: tuple[np.float32, ...], x: np.float32, persistence: np.float32) -> bool:
     """A candidate's short-window rules: persistence and the disagree rule."""
     support, trust, against, _, _ = votes
-    return bool((x != np.float32(HOLE)) & (support >= persistence) & (trust >= against))
+    return bool((x > np.float32(UNSEEN)) & (support >= persistence) & (trust >= against))
 
 
 def _chosen(
@@ -732,8 +747,8 @@ def _chosen(
 def _long_run_passes(long_run: tuple[np.float32, ...], presence: np.float32) -> bool:
     """The long-run rules: presence, and a majority when supporters and conflicts interleave (a pixel
     that keeps switching between two surfaces, half and half, is output as neither)."""
-    long_for, long_against, _, interleaved, valid = long_run
-    return bool((valid >= presence) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
+    long_for, long_against, _, interleaved, valid, seen = long_run
+    return bool((valid >= presence * seen) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
 
 
 def _long_vote(
@@ -741,9 +756,9 @@ def _long_vote(
 ) -> tuple[np.float32, ...]:
     """The chosen candidate `x`'s long-run sums after one frame's value (1/16 px; `limit` too: twice
     the short window's, so that noise spread wider than `delta` still counts as one surface)."""
-    long_for, long_against, conflicts, interleaved, frames = long_run
+    long_for, long_against, conflicts, interleaved, frames, seen = long_run
     v = np.float32(value)
-    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    valid = np.float32(1.0) if value > UNSEEN else np.float32(0.0)
     agree = np.float32(1.0) if abs(v - x) <= limit else np.float32(0.0)
     conflict = valid - valid * agree
     return (
@@ -752,6 +767,7 @@ def _long_vote(
         conflicts + conflict,
         interleaved + agree * conflicts,  # frames come newest first: a conflict counted is a newer one
         frames + valid,
+        seen + (np.float32(1.0) if value != UNSEEN else np.float32(0.0)),
     )
 
 
@@ -795,7 +811,7 @@ def _add_frame(
     """One frame's value into a pixel's short-window sums: `_vote` for candidates a, b and c. A HOLE
     agrees with a HOLE only, and a HOLE candidate never passes."""
     v = np.float32(value)
-    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    valid = np.float32(1.0) if value > UNSEEN else np.float32(0.0)
     votes_a, votes_b, votes_c = sums
     return (
         _vote(votes_a, v, valid, a, confidence, decay, short, limit),
@@ -828,6 +844,9 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["_ages"] = numba.njit(cache=True, inline="always")(_ages)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
     module["_crack_weights"] = numba.njit(cache=True, nogil=True)(_crack_weights)
+    module["_mean_disparity"] = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(
+        _mean_disparity
+    )
     module["_close_cracks"] = numba.njit(cache=True, nogil=True, inline="always")(_close_cracks)
     module["_warp_row"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_warp_row)  # no zero checks:
     # a division by zero gives inf, which the projection's tests reject, and the loop vectorises
