@@ -37,7 +37,8 @@ def true_disparity(pose: np.ndarray) -> np.ndarray:
     hit = origin + box[..., None] * directions
     on_box = (hit[..., 0] >= BOX[0]) & (hit[..., 0] <= BOX[1]) & (hit[..., 1] >= BOX[2]) & (hit[..., 1] <= BOX[3])
     depth = np.where(on_box, box, wall)
-    return (PROJECTION.fb / depth).astype(np.float32)
+    disparity: np.ndarray = (PROJECTION.fb / depth).astype(np.float32)
+    return disparity
 
 
 def noisy(truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
