@@ -74,7 +74,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
 VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
 VIEW_TILES = 3  # in 3 x 3 tiles
-STILL = 1e-9  # a relative pose this close to the identity (every entry) leaves a frame where it is
+STILL_PX = 0.25  # a remembered frame whose move would shift no pixel further stays where it is
 
 
 @dataclass(frozen=True)
@@ -179,6 +179,18 @@ def _hanning(shape: tuple[int, int]) -> np.ndarray:
     return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
 
 
+def _largest_shift(relative: np.ndarray, projection: Projection, shape: tuple[int, ...], nearest: float) -> float:
+    """A bound on how far, px, moving a frame by `relative` shifts its pixels: the turn at the image's
+    corners, plus the translation seen at the frame's nearest point (its largest disparity `nearest`)."""
+    angle = float(np.arccos(np.clip((np.trace(relative[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    corner = np.hypot(max(projection.cx, shape[-1] - projection.cx), max(projection.cy, shape[0] - projection.cy))
+    focal = max(projection.fx, projection.fy)
+    turn = focal * angle * (1.0 + (corner / focal) ** 2)
+    inverse_depth = max(nearest - projection.offset, 0.0) / projection.fb if np.isfinite(nearest) else 0.0
+    moved = focal * float(np.linalg.norm(relative[:3, 3])) * inverse_depth * (1.0 + corner / focal)
+    return float(turn + moved)
+
+
 def lead_in_frames() -> int:
     """Frames before a shard's first that give it the state one pass has there: the output depends on
     the last LONG_RUN frames, and the restarts among them on the PERIOD_STAMPS stamps before each."""
@@ -194,6 +206,7 @@ class TemporalFilter:
         self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid; UNSEEN: before a restart, out of view
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
         self._poses: list[np.ndarray | None] = [None] * LONG_RUN  # per ring row: where its frame was taken
+        self._nearest = np.zeros(LONG_RUN)  # per ring row: its largest disparity, px (how far its points move)
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
@@ -241,7 +254,7 @@ class TemporalFilter:
         ring = (self._head - np.arange(LONG_RUN)) % LONG_RUN  # the rows, newest first
         slots = ring
         if pose is not None and motion is not None and self._frames:
-            slots = self._moved_history(ring, pose, motion.projection, disparity.shape[-1], settings.delta)
+            slots = self._moved_history(ring, pose, motion.projection, disparity.shape, settings.delta)
         both, changed = kernels["store"](
             disparity.reshape(-1),
             None if confidence is None else confidence.reshape(-1),
@@ -257,6 +270,7 @@ class TemporalFilter:
             slots = ring
             self._frames = 0
         self._poses[self._head] = pose
+        self._nearest[self._head] = np.fmax.reduce(disparity, axis=None) if pose is not None else 0.0
         self._standing_aside = turned or self._standing_aside
         self._stamps.append(stamp_ns)
         self._calibration = calibration
@@ -280,10 +294,12 @@ class TemporalFilter:
         return out.reshape(disparity.shape)
 
     def _moved_history(
-        self, ring: np.ndarray, pose: np.ndarray, projection: Projection, width: int, delta: float
+        self, ring: np.ndarray, pose: np.ndarray, projection: Projection, shape: tuple[int, ...], delta: float
     ) -> np.ndarray:
-        """The rows to vote with, newest first: each remembered frame with a pose that differs from this
-        frame's moved into this view (in its row of the second half), the others as they are."""
+        """The rows to vote with, newest first: each remembered frame whose pose differs from this frame's
+        by more than STILL_PX moved into this view (in its row of the second half), the others as they
+        are. While the camera moves, frames older than the short window (MAX_HISTORY) are not moved but
+        left unseen: the long-run rules then look back over the short window only, at half the cost."""
         assert self._values is not None
         here = np.linalg.inv(pose)
         slots = ring.copy()
@@ -293,11 +309,14 @@ class TemporalFilter:
             if then is None:
                 continue
             relative = here @ then  # the camera then, in this frame's camera
-            if np.abs(relative - np.eye(4)).max() <= STILL:
+            if _largest_shift(relative, projection, shape, float(self._nearest[ring[age]])) <= STILL_PX:
+                continue
+            slots[age] = LONG_RUN + ring[age]
+            if age >= MAX_HISTORY:
+                self._values[LONG_RUN + ring[age]] = UNSEEN
                 continue
             sources.append(ring[age])
             transforms.append(relative[:3])
-            slots[age] = LONG_RUN + ring[age]
         if sources:
             weights = self._weights if self._weights is not None else np.zeros((2 * LONG_RUN, 1), np.uint8)
             _kernels()["warp"](
@@ -307,7 +326,7 @@ class TemporalFilter:
                 np.array(sources, np.int64),
                 np.array(transforms, np.float64),
                 np.array(projection, np.float64),
-                width,
+                shape[-1],
                 np.int32(round(delta * SUBPIXELS)),
             )
         return slots
@@ -430,6 +449,7 @@ def _warp_row(
     f32 = np.float32
     fx, fy, cx, cy = f32(projection[0]), f32(projection[1]), f32(projection[2]), f32(projection[3])
     inverse_fb, offset = f32(1.0 / projection[4]), f32(projection[5])
+    inverse_fx = f32(1.0 / projection[0])
     r = transform.astype(np.float32)
     height = source.size // width
     target[:] = UNSEEN
@@ -446,7 +466,7 @@ def _warp_row(
             valid = value > UNSEEN
             d = (f32(value) * f32(1.0 / SUBPIXELS) if valid else fallback) - offset
             s = d * inverse_fb  # inverse depth, 1/m: the point is (xn, yn, 1) / s
-            xn = (f32(u) - cx) / fx
+            xn = (f32(u) - cx) * inverse_fx
             x = r[0, 0] * xn + row_x + r[0, 3] * s
             y = r[1, 0] * xn + row_y + r[1, 3] * s
             z = r[2, 0] * xn + row_z + r[2, 3] * s
@@ -469,10 +489,12 @@ def _warp_row(
             moved[u] = np.int16(fixed) if valid else HOLE  # a hole marks the view it was in
         for u in range(width):
             q = places[u]
-            if q >= 0 and (moved[u] > target[q] or target[q] == UNSEEN):
-                target[q] = moved[u]
+            if q >= 0:  # a store either way, so that holes among valid pixels cost no mispredicted branch
+                here = target[q]
+                wins = (moved[u] > here) | (here == UNSEEN)
+                target[q] = moved[u] if wins else here
                 if weighted:
-                    target_weights[q] = source_weights[start + u]
+                    target_weights[q] = source_weights[start + u] if wins else target_weights[q]
     _close_cracks(target, target_weights, weighted, width, limit)
 
 
