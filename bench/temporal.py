@@ -8,8 +8,9 @@ Three kinds of sequence, each through the profile's pipeline and then `TemporalF
 - moving: a textured patch (cut from another real scene) at a known disparity in front of a real
   scene, moving sideways, then gone: how long its trail stays, and how much of it is seen while it moves;
 - pitching: the rig turning about its baseline (plus and minus 2 degrees, 1.2 s period, 30 Hz), an exact
-  homography of both rectified images of a real scene and of its ground truth, with fresh noise; no
-  odometry is given, so the filter has to see the motion itself (`--pitching N`: the first N scenes);
+  homography of both rectified images of a real scene and of its ground truth, with fresh noise; once
+  without odometry (the filter has to see the motion itself) and once with the rig's exact pose at each
+  frame, as odometry gives it (`--pitching N`: the first N scenes);
 - recorded: real static recordings (`--data DIR`: each folder in it a recording a real camera made
   standing still; README.md says how to build them): real sensor noise, auto-exposure and the errors
   that come back frame after frame; no ground truth.
@@ -41,9 +42,9 @@ import numpy as np
 
 from stereo_depth.bag.sources import read_frames
 from stereo_depth.core.camera import StereoCamera
-from stereo_depth.core.params import make_params
+from stereo_depth.core.params import StereoParams, make_params
 from stereo_depth.core.pipeline import StereoPipeline
-from stereo_depth.core.temporal import TemporalFilter, TemporalSettings
+from stereo_depth.core.temporal import LONG_RUN, CameraMotion, Projection, TemporalFilter, TemporalSettings
 from stereo_depth.core.threads import use_threads
 from stereo_depth.formats.scenes import Scene, load_scene
 
@@ -113,23 +114,76 @@ def moving_sequence(
         yield noisy(left, rng), noisy(right, rng), gt.astype(np.float32)
 
 
+def pitch_rotation(index: int) -> np.ndarray:
+    """The pitching rig's orientation at frame `index`: a turn about the baseline (the x axis)."""
+    angle = np.radians(PITCH_DEGREES) * np.sin(2.0 * np.pi * index * FRAME_NS * 1e-9 / PITCH_PERIOD_S)
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def pitch_projection(scene: Scene) -> Projection:
+    """The pinhole the pitching sequence is rendered with (focal length the image width, principal point
+    the centre; the baseline any, as the motion is a turn about the camera centres)."""
+    height, width = scene.left.shape[:2]
+    f = float(width)
+    return Projection(f, f, (width - 1) / 2.0, (height - 1) / 2.0, f * 0.1, 0.0)
+
+
+def pitch_homography(scene: Scene, index: int) -> np.ndarray:
+    """The image motion of frame `index`: H = K R^T K^-1, a first-frame pixel to this frame's."""
+    projection = pitch_projection(scene)
+    k = np.array([[projection.fx, 0.0, projection.cx], [0.0, projection.fy, projection.cy], [0.0, 0.0, 1.0]])
+    return np.asarray(k @ pitch_rotation(index).T @ np.linalg.inv(k))
+
+
+def anchored_to_scene(scene: Scene, disparities: list[np.ndarray], first: int) -> list[np.ndarray]:
+    """Frames first, first + 1, ... of a pitching sequence mapped back to the first frame's view (nearest
+    pixel, disparities scaled back to that view): a point of the scene keeps its pixel, so its runs of
+    frames are the scene point's, not a pixel's the view slides over."""
+    height, width = disparities[0].shape
+    projection = pitch_projection(scene)
+    rows = ((np.arange(height, dtype=np.float64)[:, None] - projection.cy) / projection.fy).astype(np.float32)
+    out = []
+    for offset, disparity in enumerate(disparities):
+        rotation = pitch_rotation(first + offset)
+        back = cv2.warpPerspective(
+            disparity.astype(np.float32),
+            pitch_homography(scene, first + offset),
+            (width, height),
+            flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=float("nan"),
+        )
+        out.append(back * (np.float32(rotation[1, 1]) - np.float32(rotation[2, 1]) * rows))
+    return out
+
+
+def pitching_motions(scene: Scene, frames: int) -> list[CameraMotion]:
+    """The odometry of the pitching rig: the camera's exact pose at each frame."""
+    projection = pitch_projection(scene)
+    motions = []
+    for index in range(frames):
+        pose = np.eye(4)
+        pose[:3, :3] = pitch_rotation(index)
+        motions.append(CameraMotion(pose, projection))
+    return motions
+
+
 def pitching_sequence(scene: Scene, frames: int, seed: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The rig pitching about its baseline (PITCH_DEGREES, PITCH_PERIOD_S, 30 Hz): a rotation about the
-    axis through both camera centres, so both rectified images move by the same homography H = K R K^-1
-    (K: focal length the image width, principal point the centre; any pinhole K is exact) and stay
-    rectified. The ground truth moves with them: a point's disparity scales by Z / Z' = 1 / (R^T K^-1 p)_z."""
+    axis through both camera centres, so both rectified images move by the same homography H = K R^T K^-1
+    (K: `pitch_projection`; any pinhole K is exact) and stay rectified. The ground truth moves with them:
+    a point's disparity scales by Z / Z' = 1 / (R^T K^-1 p)_z."""
     rng = np.random.default_rng(seed)
     assert scene.gt is not None
     height, width = scene.gt.shape
-    f, cx, cy = float(width), (width - 1) / 2.0, (height - 1) / 2.0
-    k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    projection = pitch_projection(scene)
     gt = np.where(scene.mask, scene.gt, np.nan) if scene.mask is not None else scene.gt
-    rows = (np.arange(height, dtype=np.float64)[:, None] - cy) / f
+    rows = (np.arange(height, dtype=np.float64)[:, None] - projection.cy) / projection.fy
     for index in range(frames):
-        angle = np.radians(PITCH_DEGREES) * np.sin(2.0 * np.pi * index * FRAME_NS * 1e-9 / PITCH_PERIOD_S)
-        c, s = np.cos(angle), np.sin(angle)
-        rotation = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-        h = k @ rotation.T @ np.linalg.inv(k)
+        rotation = pitch_rotation(index)
+        c, s = rotation[1, 1], rotation[2, 1]
+        h = pitch_homography(scene, index)
         scaled = (gt / (c - s * rows)).astype(np.float32)  # the disparity each source pixel has after the turn
         size = (width, height)
         moved_gt = cv2.warpPerspective(
@@ -203,9 +257,11 @@ def run(
     settings: TemporalSettings | None,
     camera: StereoCamera | None,
     warm_up: int,
+    motions: list[CameraMotion] | None = None,
 ) -> tuple[list[np.ndarray], list[np.ndarray], float]:
-    """Disparities (filtered when `settings`), ground truths and the filter's median ms per frame."""
-    outs, gts, filter_ms, _ = timed_run(pipeline, frames, settings, camera, warm_up)
+    """Disparities (filtered when `settings`), ground truths and the filter's median ms per frame;
+    `motions`: each frame's odometry (None: none)."""
+    outs, gts, filter_ms, _ = timed_run(pipeline, frames, settings, camera, warm_up, motions)
     return outs, gts, filter_ms
 
 
@@ -215,6 +271,7 @@ def timed_run(
     settings: TemporalSettings | None,
     camera: StereoCamera | None,
     warm_up: int,
+    motions: list[CameraMotion] | None = None,
 ) -> tuple[list[np.ndarray], list[np.ndarray], float, float]:
     """`run`, and the match's median ms per frame (rectify and match, the stage the filter follows)."""
     temporal = TemporalFilter()
@@ -226,8 +283,12 @@ def timed_run(
         disparity = result.disparity
         if settings is not None:
             start = time.perf_counter()  # wall: the kernel runs on numba's threads
-            disparity = temporal.apply(disparity, result.confidence, k * FRAME_NS, 0, settings, view=result.left_rect)
-            times.append((time.perf_counter() - start) * 1000.0)
+            motion = None if motions is None else motions[k]
+            disparity = temporal.apply(
+                disparity, result.confidence, k * FRAME_NS, 0, settings, view=result.left_rect, motion=motion
+            )
+            if k >= warm_up:
+                times.append((time.perf_counter() - start) * 1000.0)
         if k >= warm_up:
             outs.append(disparity)
             gts.append(gt)
@@ -342,27 +403,44 @@ def main() -> None:
             )
         report(f"moving {scene.name}", profile, rows[0], rows[1], args.markdown)
     pitching: dict[str, list[tuple[Row, Row]]] = {}
+    odometry: dict[str, list[tuple[Row, Row]]] = {}
     for profile in args.profiles:
         for scene in scenes[: args.pitching]:
             params = make_params(profile, {"disparity_range": scene.disparity_range()})
-            rows = []
-            for chosen in (None, settings):
-                frames = pitching_sequence(scene, PITCH_FRAMES, args.seed)
-                outs, gts, ms = run(StereoPipeline(params), frames, chosen, None, args.warm_up)
-                rows.append(metrics(outs, gts, ms))
-            report(f"pitching {scene.name}", profile, rows[0], rows[1], args.markdown)
-            pitching.setdefault(profile, []).append((rows[0], rows[1]))
+            off = pitching_metrics(scene, params, None, None, args)
+            for motions, table, label in (
+                (None, pitching, "pitching"),
+                (pitching_motions(scene, PITCH_FRAMES), odometry, "pitching, odometry"),
+            ):
+                on = pitching_metrics(scene, params, settings, motions, args)
+                report(f"{label} {scene.name}", profile, off, on, args.markdown)
+                table.setdefault(profile, []).append((off, on))
     for profile in args.profiles:
         vga_cost(profile, settings, scenes[0], args.markdown)
     recorded = recordings(args.data, args.profiles, settings, args.warm_up, args.markdown) if args.data else []
     print()
-    for kind, worst in (("static", summary), ("pitching (no odometry)", pitching)):
+    for kind, worst in (("static", summary), ("pitching (no odometry)", pitching), ("pitching (odometry)", odometry)):
         for profile, pairs in worst.items():
             print(worst_of(kind, profile, pairs))
     for note in notes:
         print(note)
     for line in recorded:
         print(line)
+
+
+def pitching_metrics(
+    scene: Scene,
+    params: StereoParams,
+    settings: TemporalSettings | None,
+    motions: list[CameraMotion] | None,
+    args: argparse.Namespace,
+) -> Row:
+    """A pitching sequence's row, counted in the scene's frame (`anchored_to_scene`): on a moving rig a
+    ghost is a point that lasts fewer than 3 frames at one place in the scene; a wrong match that stays
+    on the edge it came from while the view moves is a steady error, which bad-2 counts."""
+    frames = pitching_sequence(scene, PITCH_FRAMES, args.seed)
+    outs, gts, ms = run(StereoPipeline(params), frames, settings, None, args.warm_up, motions)
+    return metrics(anchored_to_scene(scene, outs, args.warm_up), anchored_to_scene(scene, gts, args.warm_up), ms)
 
 
 def worst_of(kind: str, profile: str, pairs: list[tuple[Row, Row]]) -> str:
@@ -379,7 +457,8 @@ def worst_of(kind: str, profile: str, pairs: list[tuple[Row, Row]]) -> str:
 
 def vga_cost(profile: str, settings: TemporalSettings, scene: Scene, markdown: bool) -> None:
     """The filter's and the match's ms per 640x480 frame, in the same run, on real disparities (and
-    confidences) of the profile's matcher: the scene scaled to VGA, with fresh noise every frame."""
+    confidences) of the profile's matcher: the scene scaled to VGA, with fresh noise every frame; still,
+    and pitching with odometry (every remembered frame moved; timed once the history is full)."""
     assert scene.gt is not None
     vga = dataclasses.replace(
         scene,
@@ -390,14 +469,21 @@ def vga_cost(profile: str, settings: TemporalSettings, scene: Scene, markdown: b
         calib={},  # the range from the scaled ground truth
     )
     params = make_params(profile, {"disparity_range": vga.disparity_range()})
-    _, _, filter_ms, match_ms = timed_run(
-        StereoPipeline(params), static_sequence(vga, VGA_FRAMES, 3), settings, None, 0
-    )
-    cost = f"{filter_ms:.1f} ms = {filter_ms / match_ms:.3f}x the match ({match_ms:.0f} ms)"
-    if markdown:
-        print(table_row((f"640x480 (VGA) {scene.name}, time only", f"`{profile}`", "-", "-", "-", "-", cost)))
-    else:
-        print(f"{'640x480 (VGA), time only':28s}{profile:9s}{'on':6s}{cost}")
+    for label, frames, motions, warm_up in (
+        ("time only", static_sequence(vga, VGA_FRAMES, 3), None, 0),
+        (
+            "pitching, odometry",
+            pitching_sequence(vga, LONG_RUN + VGA_FRAMES, 3),
+            pitching_motions(vga, LONG_RUN + VGA_FRAMES),
+            LONG_RUN,
+        ),
+    ):
+        _, _, filter_ms, match_ms = timed_run(StereoPipeline(params), frames, settings, None, warm_up, motions)
+        cost = f"{filter_ms:.1f} ms = {filter_ms / match_ms:.3f}x the match ({match_ms:.0f} ms)"
+        if markdown:
+            print(table_row((f"640x480 (VGA) {scene.name}, {label}", f"`{profile}`", "-", "-", "-", "-", cost)))
+        else:
+            print(f"{'640x480 (VGA), ' + label:28s}{profile:9s}{'on':6s}{cost}")
 
 
 @dataclasses.dataclass

@@ -41,6 +41,15 @@ px since the previous frame (the median over tiles of their phase correlation, s
 still view does not count): the camera turns or moves, and the history no longer lies under the same
 pixels. It then stands aside: frames pass unfiltered until `persistence` frames of a still view refill
 the history, so that without odometry the filter never makes a moving camera's depth worse.
+
+With odometry (`CameraMotion`: the rectified left camera's pose at each frame), the history moves with
+the camera instead: before the vote, each remembered frame is projected into this frame's view through
+its own depth and the relative pose between the two frames (a forward warp: the nearest point wins a
+pixel, one-pixel cracks are closed), so a still surface agrees with itself while the robot drives or
+turns, and the image test stands down while the odometry explains the motion. Each frame is moved from
+where it was taken, never from a moved copy, so the error does not build up. A frame without a pose
+(its odometry late) is voted on unmoved, with the image test; one whose odometry stopped or jumped
+restarts everything.
 ROS-free; the kernels are numba-compiled on first use (census_sgm's dependency), then cached.
 """
 
@@ -51,11 +60,12 @@ import itertools
 from collections import deque
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
+from stereo_depth.core.camera import StereoCamera
 from stereo_depth.errors import ParameterError
 
 MAX_HISTORY = 8  # frames: RealSense's "k of the last 8"
@@ -64,6 +74,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
 VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
 VIEW_TILES = 3  # in 3 x 3 tiles
+STILL_PX = 0.25  # a remembered frame whose move would shift no pixel further stays where it is
 
 
 @dataclass(frozen=True)
@@ -97,13 +108,50 @@ class TemporalSettings:
         return self
 
 
+class Projection(NamedTuple):
+    """The rectified left camera at the disparity's size: what turns a disparity into a point and back."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    fb: float  # fx * baseline, px m: depth = fb / (disparity - offset)
+    offset: float  # cx_left - cx_right, px
+
+    @classmethod
+    def of(cls, camera: StereoCamera) -> Projection:
+        return cls(
+            camera.fx, camera.fy, camera.cx_left, camera.cy, camera.fx * camera.baseline, camera.disparity_offset
+        )
+
+
+class CameraMotion(NamedTuple):
+    """Where a frame was taken: the rectified left camera's pose in the odometry frame (4x4 float64, the
+    camera's points to the odometry frame's; None: not known for this frame) and its projection; `forget`:
+    the odometry stopped or jumped, so the history no longer lines up."""
+
+    pose: np.ndarray | None
+    projection: Projection
+    forget: bool = False
+
+
 def compile_kernels() -> None:
     """Compile the kernels (or load them from numba's cache) for frames with and without confidence now,
     so that the first frame does not wait for them (a node would drop the frames arriving meanwhile)."""
-    for confidence in (None, np.ones((2, 2), np.float32)):
+    for confidence in (None, True):
         temporal = TemporalFilter()
+        projection = Projection(1.0, 1.0, 0.5, 0.5, 1.0, 0.0)
         for stamp in (1, 2):
-            temporal.apply(np.ones((2, 2), np.float32), confidence, stamp, None, TemporalSettings(motion_reset=0.5))
+            pose = np.eye(4)
+            pose[0, 3] = stamp  # moved: the history's move runs
+            temporal.apply(
+                np.ones((3, 3), np.float32),
+                None if confidence is None else np.ones((3, 3), np.float32),
+                stamp,
+                None,
+                TemporalSettings(motion_reset=0.5),
+                motion=CameraMotion(pose, projection),
+            )
 
 
 def _view_shift(previous: np.ndarray, current: np.ndarray) -> float:
@@ -131,6 +179,18 @@ def _hanning(shape: tuple[int, int]) -> np.ndarray:
     return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
 
 
+def _largest_shift(relative: np.ndarray, projection: Projection, shape: tuple[int, ...], nearest: float) -> float:
+    """A bound on how far, px, moving a frame by `relative` shifts its pixels: the turn at the image's
+    corners, plus the translation seen at the frame's nearest point (its largest disparity `nearest`)."""
+    angle = float(np.arccos(np.clip((np.trace(relative[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    corner = np.hypot(max(projection.cx, shape[-1] - projection.cx), max(projection.cy, shape[0] - projection.cy))
+    focal = max(projection.fx, projection.fy)
+    turn = focal * angle * (1.0 + (corner / focal) ** 2)
+    inverse_depth = max(nearest - projection.offset, 0.0) / projection.fb if np.isfinite(nearest) else 0.0
+    moved = focal * float(np.linalg.norm(relative[:3, 3])) * inverse_depth * (1.0 + corner / focal)
+    return float(turn + moved)
+
+
 def lead_in_frames() -> int:
     """Frames before a shard's first that give it the state one pass has there: the output depends on
     the last LONG_RUN frames, and the restarts among them on the PERIOD_STAMPS stamps before each."""
@@ -141,9 +201,12 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        # (LONG_RUN, pixels): a ring of the last frames, rows before the last restart HOLE
-        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid, or before a restart
+        # (2 * LONG_RUN, pixels): a ring of the last frames, rows before the last restart UNSEEN; then, row
+        # LONG_RUN + r, frame r moved into the newest frame's view (with odometry)
+        self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid; UNSEEN: before a restart, out of view
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
+        self._poses: list[np.ndarray | None] = [None] * LONG_RUN  # per ring row: where its frame was taken
+        self._nearest = np.zeros(LONG_RUN)  # per ring row: its largest disparity, px (how far its points move)
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
@@ -154,6 +217,7 @@ class TemporalFilter:
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
         self._values = self._weights = self._view = None
+        self._poses = [None] * LONG_RUN
         self._head, self._frames, self._calibration = -1, 0, None
         self._standing_aside = False
         self._stamps.clear()
@@ -167,11 +231,13 @@ class TemporalFilter:
         settings: TemporalSettings,
         *,
         view: np.ndarray | None = None,
+        motion: CameraMotion | None = None,
     ) -> np.ndarray:
         """This frame's filtered disparity (a new float32 array, NaN invalid); `disparity` is not changed.
-        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test."""
+        `view`: the frame's rectified left image (grey), for the ego-motion test; None: no test.
+        `motion`: where the frame was taken (odometry); None: no odometry."""
         kernels = _kernels()
-        turned = self._view_moved(view, settings.ego_motion)
+        pose = None if motion is None else motion.pose
         pixels = disparity.size
         if (
             self._values is None
@@ -179,22 +245,32 @@ class TemporalFilter:
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((LONG_RUN, pixels), HOLE, np.int16)
-            self._weights = None if confidence is None else np.zeros((LONG_RUN, pixels), np.uint8)
+            self._values = np.full((2 * LONG_RUN, pixels), UNSEEN, np.int16)
+            self._weights = None if confidence is None else np.zeros((2 * LONG_RUN, pixels), np.uint8)
             self._head, self._frames = -1, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
+        explained = pose is not None and self._frames > 0 and self._poses[previous] is not None
+        turned = self._view_moved(view, settings.ego_motion) and not explained  # odometry explains the shift
+        ring = (self._head - np.arange(LONG_RUN)) % LONG_RUN  # the rows, newest first
+        slots = ring
+        if pose is not None and motion is not None and self._frames:
+            slots = self._moved_history(ring, pose, motion.projection, disparity.shape, settings.delta)
         both, changed = kernels["store"](
             disparity.reshape(-1),
             None if confidence is None else confidence.reshape(-1),
             self._values[self._head],
             None if self._weights is None else self._weights[self._head],
-            self._values[previous] if self._frames and settings.motion_reset > 0 else None,  # the motion test's
+            self._values[slots[1]] if self._frames and settings.motion_reset > 0 else None,  # the motion test's
             np.float32(settings.delta),
         )
         moved = settings.motion_reset > 0 and both > 0 and changed > settings.motion_reset * both
-        if self._frames == 0 or moved or turned or self._stamp_breaks(stamp_ns):
-            self._values[np.arange(LONG_RUN) != self._head] = HOLE
+        forget = motion is not None and motion.forget
+        if self._frames == 0 or moved or turned or forget or self._stamp_breaks(stamp_ns):
+            self._values[ring[1:]] = UNSEEN
+            slots = ring
             self._frames = 0
+        self._poses[self._head] = pose
+        self._nearest[self._head] = np.fmax.reduce(disparity, axis=None) if pose is not None else 0.0
         self._standing_aside = turned or self._standing_aside
         self._stamps.append(stamp_ns)
         self._calibration = calibration
@@ -203,12 +279,12 @@ class TemporalFilter:
         kernels["filter"](
             self._values,
             self._weights,
-            (self._head - np.arange(LONG_RUN)) % LONG_RUN,  # the rows, newest first
+            slots,
             _decays(settings.alpha, settings.history),
             (np.arange(MAX_HISTORY) < settings.history).astype(np.float32),  # the short window
             np.float32(settings.delta),
             np.float32(settings.persistence),
-            np.float32(settings.presence * min(self._frames, LONG_RUN)),
+            np.float32(settings.presence),
             out,
             _threads(),
         )
@@ -216,6 +292,44 @@ class TemporalFilter:
             return disparity.astype(np.float32, copy=True)  # no worse than no filter while the view moves
         self._standing_aside = False
         return out.reshape(disparity.shape)
+
+    def _moved_history(
+        self, ring: np.ndarray, pose: np.ndarray, projection: Projection, shape: tuple[int, ...], delta: float
+    ) -> np.ndarray:
+        """The rows to vote with, newest first: each remembered frame whose pose differs from this frame's
+        by more than STILL_PX moved into this view (in its row of the second half), the others as they
+        are. While the camera moves, frames older than the short window (MAX_HISTORY) are not moved but
+        left unseen: the long-run rules then look back over the short window only, at half the cost."""
+        assert self._values is not None
+        here = np.linalg.inv(pose)
+        slots = ring.copy()
+        sources, transforms = [], []
+        for age in range(1, min(self._frames, LONG_RUN - 1) + 1):
+            then = self._poses[ring[age]]
+            if then is None:
+                continue
+            relative = here @ then  # the camera then, in this frame's camera
+            if _largest_shift(relative, projection, shape, float(self._nearest[ring[age]])) <= STILL_PX:
+                continue
+            slots[age] = LONG_RUN + ring[age]
+            if age >= MAX_HISTORY:
+                self._values[LONG_RUN + ring[age]] = UNSEEN
+                continue
+            sources.append(ring[age])
+            transforms.append(relative[:3])
+        if sources:
+            weights = self._weights if self._weights is not None else np.zeros((2 * LONG_RUN, 1), np.uint8)
+            _kernels()["warp"](
+                self._values,
+                weights,
+                self._weights is not None,
+                np.array(sources, np.int64),
+                np.array(transforms, np.float64),
+                np.array(projection, np.float64),
+                shape[-1],
+                np.int32(round(delta * SUBPIXELS)),
+            )
+        return slots
 
     def _view_moved(self, view: np.ndarray | None, limit: float) -> bool:
         """Whether the view shifted by more than `limit` px since the last frame (the camera turned or
@@ -246,7 +360,9 @@ class TemporalFilter:
 
 
 # ----------------------------------------------------------------------------------------------- kernels
-# The history holds 1/16 px fixed point (int16, HOLE where invalid) and the confidence as 0..255 (uint8):
+# The history holds 1/16 px fixed point (int16: HOLE where invalid, UNSEEN where the pixel was not in the
+# view: a frame before the last restart, or one moved from where it did not see this pixel) and the
+# confidence as 0..255 (uint8):
 # a quarter of float32's bytes to stream through per frame. Always LONG_RUN rows, those before a restart
 # HOLE, so the kernel's frame loop is written out and each pixel's sums stay in registers (a loop over the
 # frames inside the pixel loop would keep it from vectorising). No fastmath: its contractions (FMA) differ
@@ -255,6 +371,7 @@ class TemporalFilter:
 
 SUBPIXELS = 16  # the history's and the output's step, 1/16 px: DisparityImage's delta_d, OpenCV's fixed point
 HOLE = np.int16(-32768)
+UNSEEN = np.int16(-32767)  # every value above it is a disparity
 CONFIDENCE_LEVELS = 255
 prange = range  # numba.prange once the kernels are compiled (_kernels)
 
@@ -279,10 +396,155 @@ def _store(
         values[p] = fixed
         if weights is not None and confidence is not None:
             weights[p] = np.uint8(np.rint(min(max(confidence[p], 0.0), 1.0) * CONFIDENCE_LEVELS))
-        if previous is not None and fixed != HOLE and previous[p] != HOLE:
+        if previous is not None and fixed != HOLE and previous[p] > UNSEEN:
             both += 1
             changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
+
+
+def _warp_rows(
+    values: np.ndarray,
+    weights: np.ndarray,
+    weighted: bool,
+    sources: np.ndarray,
+    transforms: np.ndarray,
+    projection: np.ndarray,
+    width: int,
+    limit: np.int32,
+) -> None:
+    """Each row of `sources` moved into the newest frame's view, into row LONG_RUN + its own (and its
+    confidence, when `weighted`): `transforms[k]` (3x4) maps the points of frame k's camera to this one's;
+    `projection`: fx, fy, cx, cy, fb, offset. One thread a row, so the nearest point wins a pixel
+    whatever the threads."""
+    for k in prange(sources.size):
+        row = sources[k]
+        _warp_row(
+            values[row],
+            values[LONG_RUN + row],
+            weights[row] if weighted else weights[0],
+            weights[LONG_RUN + row] if weighted else weights[0],
+            weighted,
+            transforms[k],
+            projection,
+            width,
+            limit,
+        )
+
+
+def _warp_row(
+    source: np.ndarray,
+    target: np.ndarray,
+    source_weights: np.ndarray,
+    target_weights: np.ndarray,
+    weighted: bool,
+    transform: np.ndarray,
+    projection: np.ndarray,
+    width: int,
+    limit: np.int32,
+) -> None:
+    """One frame's disparities (1/16 px) forward-warped: each valid pixel's point, from its disparity,
+    moved by `transform` and projected; where several land on a pixel the nearest (largest disparity)
+    wins; then the cracks a forward warp leaves where the view stretches are closed. Per image row, the
+    projection first (branch-free, so it vectorises), then the writes."""
+    f32 = np.float32
+    fx, fy, cx, cy = f32(projection[0]), f32(projection[1]), f32(projection[2]), f32(projection[3])
+    inverse_fb, offset = f32(1.0 / projection[4]), f32(projection[5])
+    inverse_fx = f32(1.0 / projection[0])
+    r = transform.astype(np.float32)
+    height = source.size // width
+    target[:] = UNSEEN
+    fallback = _mean_disparity(source) * f32(1.0 / SUBPIXELS)  # where the frame's holes were: its mean depth
+    places = np.empty(width, np.int32)
+    moved = np.empty(width, np.int16)
+    top, right, bottom = f32(0.0), f32(width), f32(height)
+    for v in range(height):
+        yn = (f32(v) - cy) / fy
+        row_x, row_y, row_z = r[0, 1] * yn + r[0, 2], r[1, 1] * yn + r[1, 2], r[2, 1] * yn + r[2, 2]
+        start = v * width
+        for u in range(width):
+            value = source[start + u]
+            valid = value > UNSEEN
+            d = (f32(value) * f32(1.0 / SUBPIXELS) if valid else fallback) - offset
+            s = d * inverse_fb  # inverse depth, 1/m: the point is (xn, yn, 1) / s
+            xn = (f32(u) - cx) * inverse_fx
+            x = r[0, 0] * xn + row_x + r[0, 3] * s
+            y = r[1, 0] * xn + row_y + r[1, 3] * s
+            z = r[2, 0] * xn + row_z + r[2, 3] * s
+            near = f32(1.0) / z
+            column = fx * x * near + cx + f32(0.5)
+            line = fy * y * near + cy + f32(0.5)
+            fixed = (d * near + offset) * f32(SUBPIXELS) + f32(0.5)
+            ok = (
+                (d > f32(0.0))
+                & (z > f32(1e-6))
+                & (column >= top)
+                & (column < right)
+                & (line >= top)
+                & (line < bottom)
+                & (fixed < f32(32767.0))
+            )
+            column = column if ok else top
+            line = line if ok else top
+            places[u] = np.int32(line) * np.int32(width) + np.int32(column) if ok else np.int32(-1)
+            moved[u] = np.int16(fixed) if valid else HOLE  # a hole marks the view it was in
+        for u in range(width):
+            q = places[u]
+            if q >= 0:  # a store either way, so that holes among valid pixels cost no mispredicted branch
+                here = target[q]
+                wins = (moved[u] > here) | (here == UNSEEN)
+                target[q] = moved[u] if wins else here
+                if weighted:
+                    target_weights[q] = source_weights[start + u] if wins else target_weights[q]
+    _close_cracks(target, target_weights, weighted, width, limit)
+
+
+def _mean_disparity(values: np.ndarray) -> np.float32:
+    """The mean of a frame's valid values (1/16 px) over every 16th pixel; 0 when none."""
+    total, count = np.float32(0.0), np.float32(0.0)
+    for p in range(0, values.size, 16):
+        valid = values[p] > UNSEEN
+        total += np.float32(values[p]) if valid else np.float32(0.0)
+        count += np.float32(1.0) if valid else np.float32(0.0)
+    return total / count if count > np.float32(0.0) else np.float32(0.0)
+
+
+def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width: int, limit: np.int32) -> None:
+    """A hole between two valid neighbours within `limit` (left and right, else above and below) takes
+    their mean, and the lower of their confidences. Row by row, from a copy of the row, on row views
+    indexed from 0 (branch-free and without negative indices, so it vectorises); a hole filled in one
+    row counts as valid for the row below."""
+    height = values.size // width
+    row = np.empty(width, np.int32)
+    filled = np.empty(width, np.uint8)  # per pixel: 0 kept, 1 from left and right, 2 from above and below
+    for v in range(1, height - 1):
+        above = values[(v - 1) * width : v * width]
+        here = values[v * width : (v + 1) * width]
+        below = values[(v + 1) * width : (v + 2) * width]
+        for u in range(width):
+            row[u] = here[u]
+        for u in range(width - 2):
+            left, centre, right = row[u], row[u + 1], row[u + 2]
+            up, down = np.int32(above[u + 1]), np.int32(below[u + 1])
+            across = (left > UNSEEN) & (right > UNSEEN) & (np.abs(left - right) <= limit)
+            along = (up > UNSEEN) & (down > UNSEEN) & (np.abs(up - down) <= limit)
+            fill = (centre <= UNSEEN) & (across | along)
+            mean = (left + right) >> 1 if across else (up + down) >> 1
+            here[u + 1] = np.int16(mean) if fill else np.int16(centre)
+            filled[u + 1] = (np.uint8(1) if across else np.uint8(2)) if fill else np.uint8(0)
+        if weighted:
+            _crack_weights(weights, filled, v, width)
+
+
+def _crack_weights(weights: np.ndarray, filled: np.ndarray, v: int, width: int) -> None:
+    """The confidences of row `v`'s closed cracks (`filled`: 1 from left and right, 2 from above and below)."""
+    above = weights[(v - 1) * width : v * width]
+    here = weights[v * width : (v + 1) * width]
+    below = weights[(v + 1) * width : (v + 2) * width]
+    for u in range(1, width - 1):
+        if filled[u] == 1:
+            here[u] = min(here[u - 1], here[u + 1])
+        elif filled[u] == 2:
+            here[u] = min(above[u], below[u])
 
 
 def _decays(alpha: float, history: int) -> np.ndarray:
@@ -315,10 +577,10 @@ def _filter_pixels(
     offset of its supporters, so equal values average to themselves exactly), rounded to 1/16 px; none
     chosen, or vetoed: invalid.
 
-    `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are HOLE: they vote for
+    `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are UNSEEN: they vote for
     nothing); `short[age]` 1 for the frames of the short window, else 0 (and `decays[age]` 0).
-    `presence`: the valid frames a pixel needs. The pixels are cut into `parts` runs, one per thread;
-    each pixel's result is the same whatever the count."""
+    `presence`: the share of the frames that saw a pixel it must be valid in. The pixels are cut into
+    `parts` runs, one per thread; each pixel's result is the same whatever the count."""
     for part in prange(parts):
         _filter_range(
             values,
@@ -465,14 +727,15 @@ def _ages(per_age: np.ndarray) -> tuple[np.float32, ...]:
 _NO_VOTES: tuple[np.float32, ...] = (np.float32(0.0),) * 5
 _NO_SUMS: tuple[tuple[np.float32, ...], ...] = (_NO_VOTES, _NO_VOTES, _NO_VOTES)
 # Long run, for the chosen candidate: for and against (confidence), the conflicting frames seen so far
-# (newest first), the supporting frames older than one of them (> 0: interleaved), the valid frames.
-_NO_LONG_RUN: tuple[np.float32, ...] = (np.float32(0.0),) * 5
+# (newest first), the supporting frames older than one of them (> 0: interleaved), the valid frames, the
+# frames that saw the pixel (not UNSEEN).
+_NO_LONG_RUN: tuple[np.float32, ...] = (np.float32(0.0),) * 6
 
 
 def _passes(votes: tuple[np.float32, ...], x: np.float32, persistence: np.float32) -> bool:
     """A candidate's short-window rules: persistence and the disagree rule."""
     support, trust, against, _, _ = votes
-    return bool((x != np.float32(HOLE)) & (support >= persistence) & (trust >= against))
+    return bool((x > np.float32(UNSEEN)) & (support >= persistence) & (trust >= against))
 
 
 def _chosen(
@@ -506,8 +769,8 @@ def _chosen(
 def _long_run_passes(long_run: tuple[np.float32, ...], presence: np.float32) -> bool:
     """The long-run rules: presence, and a majority when supporters and conflicts interleave (a pixel
     that keeps switching between two surfaces, half and half, is output as neither)."""
-    long_for, long_against, _, interleaved, valid = long_run
-    return bool((valid >= presence) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
+    long_for, long_against, _, interleaved, valid, seen = long_run
+    return bool((valid >= presence * seen) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
 
 
 def _long_vote(
@@ -515,9 +778,9 @@ def _long_vote(
 ) -> tuple[np.float32, ...]:
     """The chosen candidate `x`'s long-run sums after one frame's value (1/16 px; `limit` too: twice
     the short window's, so that noise spread wider than `delta` still counts as one surface)."""
-    long_for, long_against, conflicts, interleaved, frames = long_run
+    long_for, long_against, conflicts, interleaved, frames, seen = long_run
     v = np.float32(value)
-    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    valid = np.float32(1.0) if value > UNSEEN else np.float32(0.0)
     agree = np.float32(1.0) if abs(v - x) <= limit else np.float32(0.0)
     conflict = valid - valid * agree
     return (
@@ -526,6 +789,7 @@ def _long_vote(
         conflicts + conflict,
         interleaved + agree * conflicts,  # frames come newest first: a conflict counted is a newer one
         frames + valid,
+        seen + (np.float32(1.0) if value != UNSEEN else np.float32(0.0)),
     )
 
 
@@ -569,7 +833,7 @@ def _add_frame(
     """One frame's value into a pixel's short-window sums: `_vote` for candidates a, b and c. A HOLE
     agrees with a HOLE only, and a HOLE candidate never passes."""
     v = np.float32(value)
-    valid = np.float32(1.0) if value != HOLE else np.float32(0.0)
+    valid = np.float32(1.0) if value > UNSEEN else np.float32(0.0)
     votes_a, votes_b, votes_c = sums
     return (
         _vote(votes_a, v, valid, a, confidence, decay, short, limit),
@@ -601,7 +865,15 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["_frame_rows"] = numba.njit(cache=True, inline="always")(_frame_rows)
     module["_ages"] = numba.njit(cache=True, inline="always")(_ages)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
+    module["_crack_weights"] = numba.njit(cache=True, nogil=True)(_crack_weights)
+    module["_mean_disparity"] = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(
+        _mean_disparity
+    )
+    module["_close_cracks"] = numba.njit(cache=True, nogil=True, inline="always")(_close_cracks)
+    module["_warp_row"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_warp_row)  # no zero checks:
+    # a division by zero gives inf, which the projection's tests reject, and the loop vectorises
     return {
         "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
         "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
+        "warp": numba.njit(cache=True, nogil=True, parallel=True)(_warp_rows),
     }
