@@ -1,5 +1,6 @@
 """disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract),
-with stereo_node's temporal filter (`temporal_filter`, the same FrameStream)."""
+with stereo_node's temporal filter (`temporal_filter`, the same FrameStream; moved by the robot's odometry
+with `left_in_base` set)."""
 
 from __future__ import annotations
 
