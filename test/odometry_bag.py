@@ -71,9 +71,9 @@ def camera_infos(width: int, height: int) -> tuple[CameraInfo, CameraInfo]:
     )
 
 
-def odometry_message(stamp_ns: int) -> Any:
+def odometry_message(stamp_ns: int, shift_m: float = 0.0) -> Any:
     """The base's pose and twist at `stamp_ns`: the camera's pitch as the base sees it (the base starts at
-    the odometry frame's origin)."""
+    the odometry frame's origin; `shift_m` moves the odometry frame along x, as a relocalisation does)."""
     types = typestore().types
     angle, rate = pitch((stamp_ns - START_NS) * 1e-9)
     camera = left_in_base_matrix()
@@ -84,7 +84,7 @@ def odometry_message(stamp_ns: int) -> Any:
     angular = camera[:3, :3] @ np.array([rate, 0.0, 0.0])  # the turn's rate, in the base frame
     point, vector = types["geometry_msgs/msg/Point"], types["geometry_msgs/msg/Vector3"]
     pose = types["geometry_msgs/msg/Pose"](
-        position=point(x=float(base[0, 3]), y=float(base[1, 3]), z=float(base[2, 3])),
+        position=point(x=float(base[0, 3]) + shift_m, y=float(base[1, 3]), z=float(base[2, 3])),
         orientation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
     )
     twist = types["geometry_msgs/msg/Twist"](
@@ -108,10 +108,16 @@ def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
 
 
 def write_odometry_bag(
-    out: Path, frames: int = 30, *, odometry_until_s: float | None = None, with_odometry: bool = True
+    out: Path,
+    frames: int = 30,
+    *,
+    odometry_until_s: float | None = None,
+    jump_at_s: float | None = None,
+    with_odometry: bool = True,
 ) -> list[int]:
     """The bag (tsukuba, grey); returns the frame stamps. `odometry_until_s`: the odometry stops after
-    this many seconds (None: it covers every frame); `with_odometry` False: no odometry topic."""
+    this many seconds (None: it covers every frame); `jump_at_s`: from then on its poses are 1 m off (a
+    relocalisation); `with_odometry` False: no odometry topic."""
     scene = load_scene(SCENES / "tsukuba")
     left, right = (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) for image in (scene.left, scene.right))
     height, width = left.shape
@@ -123,7 +129,11 @@ def write_odometry_bag(
     odometry = range(START_NS - 5 * ODOM_NS, stamps[-1] + 5 * ODOM_NS + 1, ODOM_NS) if with_odometry else range(0)
     if odometry_until_s is not None:
         odometry = range(odometry.start, START_NS + round(odometry_until_s * 1e9), ODOM_NS)
-    records: list[tuple[int, str, Any]] = [(stamp, ODOM, odometry_message(stamp)) for stamp in odometry]
+    jump_ns = None if jump_at_s is None else START_NS + round(jump_at_s * 1e9)
+    records: list[tuple[int, str, Any]] = [
+        (stamp, ODOM, odometry_message(stamp, 1.0 if jump_ns is not None and stamp >= jump_ns else 0.0))
+        for stamp in odometry
+    ]
     for stamp in stamps:
         h = k @ about_x(pitch((stamp - START_NS) * 1e-9)[0]).T @ np.linalg.inv(k)
         for side, image, info in (("left", left, infos[0]), ("right", right, infos[1])):

@@ -1,5 +1,5 @@
 """The temporal filter's odometry offline: `stereo-depth process` with left_in_base reads the bag's odometry
-(a sharded run too, lead-in and all), says once where it stops and goes on, refuses a bag without it, and,
+(a sharded run too, lead-in and all), says once where it stops or jumps and goes on, refuses a bag without it, and,
 with left_in_base unset, leaves the output as it was and says once that the bag has odometry.
 """
 
@@ -70,6 +70,19 @@ def test_odometry_that_stops_gives_one_line_and_the_frames_keep_coming(
     frames = disparities(tmp_path / "out")
     assert len(frames) == 30
     assert all(np.isfinite(d).mean() > 0.5 for d in frames[-10:])  # filtered again, not forgotten at each frame
+
+
+def test_odometry_that_jumps_gives_one_line_and_the_frames_keep_coming(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A relocalisation just after a frame: that frame and the next both see the jump; one line says so."""
+    bag = tmp_path / "jumps"
+    write_odometry_bag(bag, 30, jump_at_s=0.435)  # between frame 13 (0.4333 s) and the next message
+    assert main(["process", str(bag), str(tmp_path / "out"), *FILTER, *WITH_ODOMETRY]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if "odom: odometry" in line]
+    assert len(lines) == 1 and "odometry jumped" in lines[0] and "(1x)" in lines[0], lines
+    frames = disparities(tmp_path / "out")
+    assert len(frames) == 30 and all(np.isfinite(d).mean() > 0.5 for d in frames[-10:])
 
 
 def test_left_in_base_without_an_odometry_topic_exits_1_naming_odom(
