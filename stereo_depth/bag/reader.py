@@ -47,7 +47,8 @@ SIDES = (("left", "right"), ("cam0", "cam1"), ("infra1", "infra2"))
 RAW_IMAGES = ("image_raw", "image_color", "image_mono", "image_rect_raw", "image")
 RECTIFIED_IMAGES = ("image_rect", "image_rect_color")
 COMPRESSED = "/compressed"
-# a shard reads the odometry recorded this much beyond what it reads of the images (stamps lag recording)
+# a shard reads the odometry recorded this much beyond what it reads of the images (header stamps and recording
+# times differ)
 ODOMETRY_MARGIN_NS = 10_000_000_000
 
 

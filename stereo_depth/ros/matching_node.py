@@ -231,7 +231,7 @@ class MatchingNode(StreamNode):
         matched = stream.matched(StereoSet.paired(job.stamp_ns, job.messages))
         stages = {"decode": matched.decode_ms}
         if self._odometry is not None and settings.stereo is not None and settings.stereo.temporal_filter:
-            wait_for_odometry(stream.odometry, job.stamp_ns, settings.output.odom_wait_seconds)
+            wait_for_odometry(stream.odometry, matched.frame.stamp_ns, settings.output.odom_wait_seconds)
         with self.outputs_in_order(job.sequence) as newest:
             if not newest:
                 return None
