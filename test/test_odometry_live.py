@@ -1,17 +1,24 @@
 """The temporal filter's odometry live: stereo_node with left_in_base reads odom and filters a pitching
-camera's frames as `process` does, bit for bit; where the odometry stops it says so once and goes on.
+camera's frames as `process` does, bit for bit; where the odometry stops it says so once and goes on; the
+lifecycle node reads odom only while active, from a best-effort publisher too.
 """
 
 from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from lifecycle_msgs.msg import Transition
+from nav_msgs.msg import Odometry
 from odometry_bag import NS, ODOM, STEREO_TOPICS, left_in_base_text, write_odometry_bag
+from rclpy.qos import ReliabilityPolicy
 from ros_helpers import TIMEOUT_S, NodeProcess, RosHarness, wait_until
 from stereo_msgs.msg import DisparityImage
+from test_lifecycle_node import NODE, Managed
+from test_qos_overrides import subscription_reliability
 
 from stereo_depth.bag.reader import read_messages
 from stereo_depth.cli import main
@@ -86,3 +93,24 @@ def test_odometry_that_stops_gives_one_log_line_and_the_frames_keep_coming(
     assert len(lines) == 1 and ODOM in lines[0], node.output()
     last = [found[stamp] for stamp in sorted(found)[-10:]]
     assert all(np.isfinite(d).mean() > 0.5 for d in last)  # filtered without odometry, not emptied
+
+
+def test_the_lifecycle_node_reads_odom_only_while_active_following_a_best_effort_publisher(
+    ros: RosHarness, start_node: Callable[..., NodeProcess]
+) -> None:
+    ns = "/odom_cycle"
+    managed = Managed(ros, start_node(NODE, ns, ["-p", f"left_in_base:={left_in_base_text()}"]))
+    odometry = ros.publisher(Odometry, f"{ns}/odom", ReliabilityPolicy.BEST_EFFORT)  # as many robot drivers
+    try:
+        assert managed.change(Transition.TRANSITION_CONFIGURE)
+        assert managed.subscriptions("odom") == 0
+        for activation in ("first", "second"):
+            assert managed.change(Transition.TRANSITION_ACTIVATE)
+            wait_until(
+                lambda: subscription_reliability(ros, f"{ns}/odom", NODE) == ReliabilityPolicy.BEST_EFFORT,
+                f"odom subscribed best effort after the {activation} activation",
+            )
+            assert managed.change(Transition.TRANSITION_DEACTIVATE)
+            wait_until(lambda: managed.subscriptions("odom") == 0, f"odom released after the {activation}")
+    finally:
+        ros.node.destroy_publisher(odometry)
