@@ -4,9 +4,12 @@
         left_namespace:=/camera/left right_namespace:=/camera/right params_file:=/path/params.yaml
     ros2 launch stereo_depth stereo_depth.launch.py split_nodes:=true   # stereo_image_proc's layout
     ros2 launch stereo_depth stereo_depth.launch.py rgb_namespace:=/camera/color params_file:=/path/rgbd.yaml
+    ros2 launch stereo_depth stereo_depth.launch.py odom:=/odometry/filtered params_file:=/path/robot.yaml
 
 With rgb_in_left set (in the params_file), stereo_node reads the colour camera under `rgb_namespace` and
-publishes depth registered to it (docs/rgbd.md).
+publishes depth registered to it (docs/rgbd.md). With left_in_base set (in the params_file) and
+temporal_filter on, stereo_node (disparity_node with split_nodes) reads the robot's odometry from `odom`
+and the temporal filter moves its history with the camera (docs/navigation.md).
 
 Defaults live in the nodes (declared once, from the dataclasses), so nothing is restated here.
 `profile` picks the defaults; a `params_file` (config/stereo_depth.yaml lists every parameter) wins
@@ -31,6 +34,10 @@ ARGUMENTS = {
         "rgb",
         "Topic namespace of the colour camera (image_raw, camera_info), read with rgb_in_left set",
     ),
+    "odom": (
+        "odom",
+        "The robot's nav_msgs/Odometry topic (e.g. /odom, /odometry/filtered), read with left_in_base set",
+    ),
     "params_file": ("", "Parameter YAML (e.g. config/stereo_depth.yaml); empty: the profile's defaults"),
     "profile": ("default", f"Named defaults: {', '.join(PROFILES)}"),
     "split_nodes": ("false", "true: rectify_node x2 -> disparity_node -> point_cloud_node"),
@@ -45,6 +52,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
         parameters.insert(0, arg["params_file"])
     cameras = {"left": arg["left_namespace"].rstrip("/"), "right": arg["right_namespace"].rstrip("/")}
     colour = arg["rgb_namespace"].rstrip("/")
+    odometry = ("odom", arg["odom"])  # with left_in_base
 
     def to_cameras(*names: str, sides: tuple[str, ...] = ("left", "right")) -> list[tuple[str, str]]:
         """A node's `<side>/<name>` topics renamed to the camera's own `<camera namespace>/<name>`."""
@@ -56,6 +64,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
             *to_cameras("image_raw", "camera_info"),
             *to_cameras("image_rect", "image_rect_color"),  # both: what stereo odometry subscribes
             *((f"rgb/{name}", f"{colour}/{name}") for name in ("image_raw", "camera_info")),  # with rgb_in_left
+            odometry,
         ]
         return [Node(executable="stereo_node", name="stereo_node", remappings=remaps, **common)]
     cloud_image = "image_rect_color" if arg["color"].lower() == "true" else "image_rect"
@@ -77,7 +86,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
         Node(
             executable="disparity_node",
             name="disparity_node",
-            remappings=to_cameras("image_rect", "camera_info"),
+            remappings=[*to_cameras("image_rect", "camera_info"), odometry],
             **common,
         ),
         Node(

@@ -136,6 +136,21 @@ class OutputOptions:
         0.0,
         1.0,
     )
+    # the temporal filter's history moved by odometry (core/odometry.py, frames/odometry.py)
+    left_in_base: Pose = pose_option(
+        "The left camera's optical frame as calibrated (the raw left camera_info's frame, as URDF gives it) in "
+        "the frame the odometry moves (nav_msgs/Odometry's child_frame_id, e.g. base_link), [x, y, z, qx, qy, "
+        "qz, qw]: set, the node reads odom (nav_msgs/Odometry) and temporal_filter moves its history with the "
+        "camera. Seven zeros: off (read at start-up)"
+    )
+    odom_wait_seconds: float = option(
+        0.1,
+        "With left_in_base set: how long a frame waits for the odometry message at or after its stamp (then it "
+        "is filtered without odometry), and the longest gap between odometry messages that still counts as "
+        "flowing odometry (a longer one makes the temporal filter forget its history), s",
+        0.0,
+        2.0,
+    )
 
     def validate(self) -> OutputOptions:
         check_ranges(self)
@@ -309,8 +324,10 @@ DRIVER_FIX_OPTIONS = ("baseline", "swap_left_right")
 CAMERA_OPTIONS = ("image_transport", "left_camera_info_url", "right_camera_info_url")  # what the inputs are
 # depth registered to a colour camera: its pose switches the colour inputs on (stereo_node)
 REGISTRATION_OPTIONS = ("rgb_in_left", "rgb_sync_tolerance_seconds", "rgb_image_transport")
+# the temporal filter's odometry: its pose switches the odom input on (the nodes with temporal_filter)
+ODOMETRY_OPTIONS = ("left_in_base", "odom_wait_seconds")
 # they choose the subscriptions: read-only once running
-STARTUP_OPTIONS = frozenset((*CAMERA_OPTIONS, "executor", "rgb_in_left", "rgb_image_transport"))
+STARTUP_OPTIONS = frozenset((*CAMERA_OPTIONS, "executor", "rgb_in_left", "rgb_image_transport", "left_in_base"))
 
 
 @dataclass(frozen=True)

@@ -151,6 +151,7 @@ def _type_name(msg_type: Any) -> str:
 def _topics(node: Any) -> list[str]:
     from stereo_depth.frames.registered import REGISTERED_OUTPUTS  # the page imports rclpy, the YAML does not
     from stereo_depth.ros.colour_input import COLOUR_SPEC
+    from stereo_depth.ros.odom_input import ODOM_TOPIC
 
     files = dict(node.CAMERA_INFO_FILES)
     rows = ["### Subscribed topics", "", "| topic | type | notes |", "|---|---|---|"]
@@ -167,6 +168,8 @@ def _topics(node: Any) -> list[str]:
         if topic.endswith("image_raw"):
             note += f"; with `rgb_image_transport: compressed`: `{topic}/compressed` (sensor_msgs/CompressedImage)"
         rows.append(f"| `{topic}` | {_type_name(msg_type)} | {note} |")
+    if "left_in_base" in node.OPTIONS:
+        rows.append(f"| `{ODOM_TOPIC}` | nav_msgs/Odometry | only with `left_in_base` set (the temporal filter's) |")
     rows += ["", "### Published topics", "", "| topic | type | switched by |", "|---|---|---|"]
     for topic, msg_type in (*node.OUTPUTS, node.STATUS_OUTPUT):
         switch = "rgb_in_left" if topic in REGISTERED_OUTPUTS else node.OUTPUT_SWITCHES.get(topic)

@@ -151,11 +151,10 @@ def topics(
     relative to its namespace, as `ros2 node info` lists them."""
     executables = ("stereo_node", "rectify_node", "disparity_node", "point_cloud_node")
     logs = tmp_path_factory.mktemp("launch_nodes")
-    registering = ["-p", "rgb_in_left:=[0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]"]  # stereo_node's colour inputs too
-    processes = [
-        NodeProcess(executable, NS, ros_env, logs, registering if executable == "stereo_node" else ())
-        for executable in executables
-    ]
+    odometry = ["-p", "left_in_base:=[0.0, 0.0, 0.2, -0.5, 0.5, -0.5, 0.5]"]  # the odom input too
+    registering = ["-p", "rgb_in_left:=[0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]", *odometry]  # the colour inputs too
+    args = {"stereo_node": registering, "disparity_node": odometry}
+    processes = [NodeProcess(executable, NS, ros_env, logs, args.get(executable, ())) for executable in executables]
     with ros.running(processes):
         yield {process.name: node_topics(ros, process) for process in processes}
 

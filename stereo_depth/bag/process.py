@@ -1,7 +1,9 @@
 """A recorded stereo bag through the live node's pipeline, into a bag of results.
 
 The same FrameStream (stereo_depth.frames) and synchronizer as `stereo_node`, so a bag processed here
-and the same bag replayed into the node give bit-identical outputs.
+and the same bag replayed into the node give bit-identical outputs. With `left_in_base` set, the odometry
+goes to the stream as a live node has it when it takes a frame: every message stamped up to the frame's
+stamp plus `odom_wait_seconds` (`OdometryFeed`).
 """
 
 from __future__ import annotations
@@ -22,12 +24,15 @@ from stereo_depth.bag.reader import ReadStats, StereoBagReader, TimeWindow, Topi
 from stereo_depth.bag.types import rosbags_types
 from stereo_depth.bag.writer import BagWriter, check_output
 from stereo_depth.core.geometry import depth_to_points
+from stereo_depth.core.odometry import OdometrySample, OdometryTrack
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import STAGES, StereoResult
 from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.errors import BagError, StereoDepthError
 from stereo_depth.frames import DEFAULT_OUTPUTS, FrameOutputs, FrameStream, Geometry
+from stereo_depth.frames.odometry import odometry_note
 from stereo_depth.frames.registered import REGISTERED_OUTPUTS, ColourNames, RegisteredJob, check_registered_outputs
+from stereo_depth.messages import ODOMETRY_TYPE
 from stereo_depth.options import NodeOptions, OutputOptions
 from stereo_depth.sync import StereoSet
 
@@ -64,6 +69,8 @@ class ProcessSummary:
     pictures: list[Path] = field(default_factory=list)
     clouds: list[Path] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # each once: what held for frames that still came out
+    notes: list[str] = field(default_factory=list)  # each once: worth knowing, nothing lost
+    odometry_events: Counter[str] = field(default_factory=Counter)  # odometry note -> frames it was seen at
     registered: int = 0  # colour images registered (rgb_in_left)
     without_colour: int = 0  # stereo frames no colour image paired with
 
@@ -107,6 +114,8 @@ class ProcessSummary:
             )
         out.extend(f"  skipped {n}x: {reason}" for reason, n in self.skipped.most_common())
         out.extend(f"  warning: {text}" for text in self.warnings)
+        out.extend(f"  {text} ({n}x)" for text, n in self.odometry_events.items())
+        out.extend(f"  note: {text}" for text in self.notes)
         timings = ", ".join(f"{k} {v:.1f}" for k, v in self.mean_stage_ms().items())
         out.append(f"mean per-stage time, ms: {timings}")
         return out
@@ -156,6 +165,33 @@ def _export(
         summary.clouds.append(path)
 
 
+class OdometryFeed:
+    """A bag's odometry (in stamp order) handed to a stream's track as a live node has it when it takes a
+    frame: the node waits up to `wait_s` for the message at or after the frame's stamp, so every message
+    stamped up to the frame's stamp plus `wait_s` is there, and none later."""
+
+    def __init__(self, samples: list[OdometrySample], track: OdometryTrack, wait_s: float) -> None:
+        self._samples, self._track, self._wait_ns = samples, track, round(wait_s * 1e9)
+        self._next = 0
+
+    def until(self, stamp_ns: int) -> None:
+        """Before the frame at `stamp_ns` (frames come in stamp order)."""
+        samples = self._samples
+        while self._next < len(samples) and samples[self._next].stamp_ns <= stamp_ns + self._wait_ns:
+            self._track.add(samples[self._next])
+            self._next += 1
+
+
+def unused_odometry_note(topics: dict[str, str], odom: str, output: OutputOptions) -> str | None:
+    """The note for a bag whose odometry is left unused (left_in_base unset), if it has one."""
+    if output.left_in_base.is_set or topics.get(odom) != ODOMETRY_TYPE:
+        return None
+    return (
+        f"the bag has odometry ({odom}); set left_in_base (the left camera in the odometry's child frame) for "
+        "the temporal filter to move its history with the camera"
+    )
+
+
 FrameCallback = Callable[[int, StereoSet, FrameOutputs], None]
 
 
@@ -171,7 +207,9 @@ def process_bag(
     check_registered_outputs(options.outputs, options.output)
     registered_outputs = tuple(name for name in options.outputs if name in REGISTERED_OUTPUTS)
     choice = dataclasses.replace(
-        options.topics or TopicChoice(namespace=options.namespace), with_rgb=bool(registered_outputs)
+        options.topics or TopicChoice(namespace=options.namespace),
+        with_rgb=bool(registered_outputs),
+        with_odom=options.output.left_in_base.is_set,
     )
     check_output(out_bag, options.overwrite)
     for folder in (options.png_dir, options.ply_dir):
@@ -223,10 +261,15 @@ def process_bag(
             if topics.output(name) not in summary.topics:
                 summary.topics.append(topics.output(name))
 
+        odometry = OdometryFeed(reader.odometry(), stream.odometry, options.output.odom_wait_seconds)
+        note = unused_odometry_note(reader.topic_types(), topics.output("odom"), options.output)
+        if note is not None:
+            summary.notes.append(note)
         progress = Progress(reader.count(topics.names[0]), options.progress)
         for inputs in reader.frames():
             while reader.colour_sets:  # the colour images recorded before this frame was complete
                 stream.registration.add_colour(*reader.colour_sets.popleft())
+            odometry.until(inputs.stamp_ns)
             if inputs.lead_in:  # a shard's frames before its first: only to fill the temporal filter
                 stream.lead_in(inputs)
                 continue
@@ -239,6 +282,8 @@ def process_bag(
             reason = out.frame.camera.no_depth_reason
             if reason is not None and reason not in summary.warnings:
                 summary.warnings.append(reason)
+            if out.odometry_event is not None:
+                summary.odometry_events[odometry_note(out.odometry_event, str(topics.odom))] += 1
             messages = {**out.images, **(cloud.messages if cloud is not None else {})}
             for name, message in messages.items():
                 write(name, message, inputs.stamp_ns)

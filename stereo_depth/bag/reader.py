@@ -12,6 +12,9 @@ Messages go through `sync.Synchronizer` in the order they were recorded, as they
 A colour camera beside the pair (registered depth) is read from `<ns>/rgb/` (image_raw, image_color,
 image_rect_color or their /compressed, with camera_info beside it) or the topics `--rgb`/`--rgb-info`
 name; its image and camera_info pair by stamp, and each pair waits in `colour_sets` for the caller.
+
+The robot's odometry (the temporal filter's, `left_in_base` set) is read from `<ns>/odom` or the topic
+`--odom` names: every message of it, in header stamp order (`odometry`).
 """
 
 from __future__ import annotations
@@ -27,9 +30,10 @@ from typing import Any, Literal
 from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.types import deserialize, rosbags_types
 from stereo_depth.core.camera import CameraInfo
+from stereo_depth.core.odometry import OdometrySample
 from stereo_depth.errors import BagError
 from stereo_depth.frames import InputNames
-from stereo_depth.messages import camera_info_to_msg, same_calibration, stamp_to_ns
+from stereo_depth.messages import ODOMETRY_TYPE, camera_info_to_msg, odometry_from_msg, same_calibration, stamp_to_ns
 from stereo_depth.options import NodeOptions
 from stereo_depth.sync import STEREO_CALIBRATIONS, StereoSet, SyncCounters, Synchronizer
 
@@ -43,6 +47,9 @@ SIDES = (("left", "right"), ("cam0", "cam1"), ("infra1", "infra2"))
 RAW_IMAGES = ("image_raw", "image_color", "image_mono", "image_rect_raw", "image")
 RECTIFIED_IMAGES = ("image_rect", "image_rect_color")
 COMPRESSED = "/compressed"
+# a shard reads the odometry recorded this much beyond what it reads of the images (header stamps and recording
+# times differ)
+ODOMETRY_MARGIN_NS = 10_000_000_000
 
 
 @dataclass(frozen=True)
@@ -51,6 +58,7 @@ class StereoTopics:
     names: tuple[str, str | None, str, str | None]  # in ROLES order; no camera_info topics with a calibration file
     rectified: bool
     rgb: tuple[str, str | None] | None = None  # the colour image and its camera_info (None: a file's)
+    odom: str | None = None  # the odometry (nav_msgs/Odometry), when read
 
     def output(self, name: str) -> str:
         """An output topic under the same namespace as the input (e.g. /stereo/disparity)."""
@@ -87,6 +95,8 @@ class TopicChoice:
     rgb: str | None = None
     rgb_info: str | None = None
     rgb_calibration: CameraInfo | None = None  # replaces the colour camera_info topic (a camchain's cam2)
+    with_odom: bool = False  # read the odometry too (left_in_base set)
+    odom: str | None = None  # its topic (None: <namespace>/odom)
 
     @property
     def reads_info(self) -> bool:
@@ -230,11 +240,28 @@ def _rank(candidate: StereoTopics) -> tuple[bool, bool]:
 
 def chosen_topics(topics: dict[str, str], choice: TopicChoice) -> StereoTopics:
     """The set the user named (--left/--right), else the one the conventions find; with its colour camera
-    when `choice.with_rgb`."""
+    when `choice.with_rgb`, its odometry when `choice.with_odom`."""
     stereo = _stereo_topics(topics, choice)
-    if not choice.with_rgb:
-        return stereo
-    return dataclasses.replace(stereo, rgb=colour_topics(topics, choice, stereo.namespace))
+    if choice.with_rgb:
+        stereo = dataclasses.replace(stereo, rgb=colour_topics(topics, choice, stereo.namespace))
+    if choice.with_odom:
+        stereo = dataclasses.replace(stereo, odom=odometry_topic(topics, choice, stereo.namespace))
+    return stereo
+
+
+def odometry_topic(topics: dict[str, str], choice: TopicChoice, namespace: str) -> str:
+    """The odometry topic: the one named (--odom), else `<namespace>/odom`."""
+    name = choice.odom or f"{namespace}/odom"
+    if topics.get(name) != ODOMETRY_TYPE:
+        found_as = f"is {topics[name]}" if name in topics else "is not in the bag"
+        odometry = sorted(topic for topic, kind in topics.items() if kind == ODOMETRY_TYPE)
+        have = f"; its {ODOMETRY_TYPE} topics: {', '.join(odometry)}" if odometry else f"; it has no {ODOMETRY_TYPE}"
+        msg = (
+            f"left_in_base is set, so the temporal filter needs the odometry, but {name} {found_as}{have}; "
+            "name the topic with --odom TOPIC, or unset left_in_base"
+        )
+        raise BagError(msg)
+    return name
 
 
 def colour_topics(topics: dict[str, str], choice: TopicChoice, namespace: str) -> tuple[str, str | None]:
@@ -441,16 +468,18 @@ class StereoBagReader:
         right_info = camera_info_to_msg(types, right_image.header, calibration[1])
         return StereoSet(stamp_ns, left_image, left_info, right_image, right_info)
 
-    def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
-        """(topic, message) in recording order. Damage found while reading (a cut-off file, a corrupt
-        compressed chunk or database page, undecodable CDR) becomes one BagError naming the file,
-        whichever library noticed it: rosbags, zstd, apsw and the CDR decoder each raise their own."""
+    def _messages(self, topics: list[str], window: TimeWindow | None = None) -> Iterator[tuple[str, Any]]:
+        """(topic, message) in recording order, of what `window` (the reader's own unless given) reads.
+        Damage found while reading (a cut-off file, a corrupt compressed chunk or database page,
+        undecodable CDR) becomes one BagError naming the file, whichever library noticed it: rosbags,
+        zstd, apsw and the CDR decoder each raise their own."""
         connections = [c for c in self._reader.connections if c.topic in topics]
-        start, stop = self.window.start_ns, self.window.stop_ns
+        window = window or self.window
+        start, stop = window.start_ns, window.stop_ns
         messages = self._reader.messages(
             connections,
-            start=None if start is None else start - self.window.lead_ns,
-            stop=None if stop is None else stop + self.window.lead_ns,
+            start=None if start is None else start - window.lead_ns,
+            stop=None if stop is None else stop + window.lead_ns,
         )
         while True:
             try:
@@ -466,6 +495,20 @@ class StereoBagReader:
                 )
                 raise BagError(msg) from exc
             yield connection.topic, message
+
+    def odometry(self) -> list[OdometrySample]:
+        """Every message of the odometry topic (none unless chosen), in header stamp order; with a window,
+        those recorded within ODOMETRY_MARGIN_NS of what the window reads."""
+        if self.topics.odom is None:
+            return []
+        start, stop = self.window.start_ns, self.window.stop_ns
+        window = TimeWindow(
+            None if start is None else start - ODOMETRY_MARGIN_NS,
+            None if stop is None else stop + ODOMETRY_MARGIN_NS,
+            self.window.lead_ns,
+        )
+        samples = [odometry_from_msg(message) for _, message in self._messages([self.topics.odom], window)]
+        return sorted(samples, key=lambda sample: sample.stamp_ns)
 
     def _count_input(self, topic: str) -> None:
         if topic == self.topics.names[0]:

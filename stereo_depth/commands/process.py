@@ -92,6 +92,12 @@ def add_process_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--rgb-info", metavar="TOPIC", help="colour camera_info (default: beside --rgb)")
     parser.add_argument(
+        "--odom",
+        metavar="TOPIC",
+        help="nav_msgs/Odometry topic the temporal filter moves its history by, with left_in_base set "
+        "(default: <namespace>/odom)",
+    )
+    parser.add_argument(
         "--compress", action="store_true", help="zstd-compress the MCAP chunks (smaller, about 2x slower to write)"
     )
     parser.add_argument("--overwrite", action="store_true", help="replace OUT_BAG if it exists")
@@ -150,6 +156,7 @@ def settings_from(args: argparse.Namespace) -> tuple[StereoParams, Settings]:
 
 def options_from(args: argparse.Namespace, settings: Settings) -> ProcessOptions:
     topics, output = colour_choice(args, topic_choice(args), settings.output)
+    topics = dataclasses.replace(topics, odom=getattr(args, "odom", None))
     return ProcessOptions(
         namespace=args.namespace,
         topics=topics,

@@ -22,9 +22,10 @@ from stereo_depth.core.pipeline import (
     output_params,
     rectified_output,
 )
-from stereo_depth.core.temporal import TemporalFilter
+from stereo_depth.core.temporal import CameraMotion, TemporalFilter
 from stereo_depth.errors import ImageError
 from stereo_depth.frames.decode import StereoFrame
+from stereo_depth.frames.odometry import OdometryState
 from stereo_depth.mask_image import read_mask
 from stereo_depth.messages import (
     MessageBuffer,
@@ -62,16 +63,27 @@ UINT16_MAX = 65535
 
 
 def filtered_disparity(
-    temporal: TemporalFilter, frame: StereoFrame, result: StereoResult, params: StereoParams
+    temporal: TemporalFilter,
+    frame: StereoFrame,
+    result: StereoResult,
+    params: StereoParams,
+    motion: CameraMotion | None = None,
 ) -> np.ndarray:
     """`temporal_filter`: the frame's disparity filtered over time, which disparity, depth and points2 all
     carry (the matcher's own stays in `result`). Call it once per frame in stamp order, after matching and
-    before the outputs; off, it forgets what it had seen and gives the matcher's disparity."""
+    before the outputs; off, it forgets what it had seen and gives the matcher's disparity. `motion`: where
+    the camera was (odometry, frames/odometry.py); None: no odometry."""
     if not params.temporal_filter:
         temporal.reset()
         return result.disparity
     return temporal.apply(
-        result.disparity, result.confidence, frame.stamp_ns, frame.camera.key(), params.temporal, view=result.left_rect
+        result.disparity,
+        result.confidence,
+        frame.stamp_ns,
+        frame.camera.key(),
+        params.temporal,
+        view=result.left_rect,
+        motion=motion,
     )
 
 
@@ -221,10 +233,12 @@ class CloudRate:
 class OutputState:
     """What one stream of frames keeps between frames for its outputs: the rectified mask, the
     organized cloud's and the disparity's bytes, the stamp of the last cloud (points_max_rate) and the
-    temporal filter's history (touched only where frames are in stamp order: `filtered_disparity`)."""
+    temporal filter's history and odometry state (touched only where frames are in stamp order:
+    `filtered_disparity`)."""
 
     def __init__(self) -> None:
         self.temporal = TemporalFilter()
+        self.odometry = OdometryState()
         self.masks = RectifiedMasks()
         self.disparity_buffer = MessageBuffer()  # filled and published under the node's output order lock
         self.cloud_buffer = MessageBuffer()

@@ -7,6 +7,8 @@ and publish or write what it returns, so live and offline outputs agree by const
   (left/image_rect(_color), disparity, confidence); returns them with a cloud job, or None when no cloud
   output is due, and whether the calibration changed. A node matching several frames at once calls its
   two halves, `matched` (any thread) and `outputs` (in input order), instead.
+- with `left_in_base` set, the temporal filter moves its history by the odometry the caller feeds to
+  `odometry` (frames/odometry.py); a frame where it stopped or jumped says so (`odometry_event`).
 - `CloudJob.run()`: depth, the depth limits and mask, and the messages of depth (depth, its camera_info and
   compressedDepth, points2, points2_clearing); a node runs it on its second thread. With `rgb_in_left` set
   it hands the frame's depth to `registration` (frames/registered.py) and returns the registered jobs
@@ -27,10 +29,12 @@ import numpy as np
 
 from stereo_depth.core.camera import StereoCamera
 from stereo_depth.core.geometry import disparity_to_depth
+from stereo_depth.core.odometry import OdometryTrack
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoPipeline, StereoResult
 from stereo_depth.errors import ImageError, StereoDepthError
 from stereo_depth.frames.decode import INPUT_NAMES, InputNames, StereoFrame, decode_frame, match_frame, named_errors
+from stereo_depth.frames.odometry import FrameOdometry
 from stereo_depth.frames.outputs import (
     GEOMETRY_OUTPUTS,
     Geometry,
@@ -127,6 +131,7 @@ class FrameOutputs(NamedTuple):
     cloud: CloudJob | None
     calibration_changed: bool
     stage_ms: dict[str, float]  # the matcher's stage times, and "temporal" when it ran
+    odometry_event: str | None = None  # the odometry stopped or jumped at this frame (frames/odometry.py)
 
 
 class DisparityOutputs(NamedTuple):
@@ -154,6 +159,7 @@ class FrameStream:
     ) -> None:
         self.types, self.rectified, self.names = types, rectified, names
         self.registration = Registration(types, colour_names)  # fed colour images by the caller (rgb_in_left)
+        self.odometry = OdometryTrack()  # fed odometry messages by the caller (left_in_base)
         self.pipeline = StereoPipeline(params)
         self.output = output or OutputOptions()
         self.state = OutputState()
@@ -184,7 +190,8 @@ class FrameStream:
         frame, result, output = matched.frame, matched.result, matched.output
         stage_ms = dict(result.timings_ms)
         start = time.perf_counter()
-        disparity = filtered_disparity(self.state.temporal, frame, result, matched.params)
+        odometry = self._odometry(matched)
+        disparity = filtered_disparity(self.state.temporal, frame, result, matched.params, odometry.motion)
         if matched.params.temporal_filter:
             stage_ms["temporal"] = (time.perf_counter() - start) * 1000.0
         images = image_outputs(
@@ -209,7 +216,7 @@ class FrameStream:
                     glare=result.glare,
                 )
         changed = self._calibration_changed(frame.camera)
-        return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms)
+        return FrameOutputs(frame, result, disparity, images, cloud, changed, stage_ms, odometry.event)
 
     def lead_in(self, inputs: StereoSet) -> None:
         """A frame before a shard's own: matched and fed to the temporal filter as one pass would, no
@@ -218,7 +225,12 @@ class FrameStream:
             matched = self.matched(inputs)
         except StereoDepthError:
             return
-        filtered_disparity(self.state.temporal, matched.frame, matched.result, matched.params)
+        odometry = self._odometry(matched)
+        filtered_disparity(self.state.temporal, matched.frame, matched.result, matched.params, odometry.motion)
+
+    def _odometry(self, matched: Matched) -> FrameOdometry:
+        """Where the camera was at this frame (`left_in_base` set), from the odometry fed to `odometry`."""
+        return self.state.odometry.frame(self.odometry, matched.frame, matched.result, matched.params, matched.output)
 
     def disparity_cloud(self, inputs: StereoSet, disparity_msg: Any, disparity_name: str) -> DisparityOutputs:
         """The cloud job of a DisparityImage (offset-adjusted, its rectified left image as colour in

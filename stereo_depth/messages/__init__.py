@@ -3,7 +3,8 @@
 This package imports neither ROS nor rosbags: callers hand in a `MessageTypes` (the classes of their
 flavour) and get messages of that flavour back. Every image encoding, row padding, byte order and
 point-cloud layout detail lives here and nowhere else, one module per kind of message: images,
-transports (compressed, compressedDepth), camera_info, disparity, clouds; `common` holds what they share.
+transports (compressed, compressedDepth), camera_info, disparity, clouds, odometry; `common` holds what they
+share.
 The geometry they carry (depth, points, voxel thinning) is the core's (core/geometry.py).
 """
 
@@ -29,6 +30,7 @@ from stereo_depth.messages.images import (
     image_to_array,
     image_to_pipeline,
 )
+from stereo_depth.messages.odometry import ODOMETRY_TYPE, odometry_from_msg
 from stereo_depth.messages.transports import (
     COMPRESSED_DEPTH_FORMATS,
     COMPRESSED_FORMATS,
@@ -48,6 +50,7 @@ __all__ = [
     "DEFAULT_MAX_PIXELS",
     "ENCODINGS",
     "FLOAT32",
+    "ODOMETRY_TYPE",
     "RVL_FALLBACK_NOTE",
     "MessageBuffer",
     "MessageTypes",
@@ -71,6 +74,7 @@ __all__ = [
     "image_to_pipeline",
     "in_serialized_bytes",
     "make_header",
+    "odometry_from_msg",
     "pack_rgb",
     "same_calibration",
     "stamp_to_ns",

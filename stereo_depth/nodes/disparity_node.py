@@ -1,11 +1,12 @@
 """disparity_node: rectified pair in, stereo_msgs/DisparityImage out (stereo_image_proc's contract),
-with stereo_node's temporal filter (`temporal_filter`, the same FrameStream)."""
+with stereo_node's temporal filter (`temporal_filter`, the same FrameStream; moved by the robot's odometry
+with `left_in_base` set)."""
 
 from __future__ import annotations
 
 from stereo_msgs.msg import DisparityImage
 
-from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS
+from stereo_depth.options import DRIVER_FIX_OPTIONS, INPUT_OPTIONS, ODOMETRY_OPTIONS
 from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
 from stereo_depth.ros.node_main import run_node
 from stereo_depth.sync import STEREO_CALIBRATIONS
@@ -14,7 +15,7 @@ from stereo_depth.sync import STEREO_CALIBRATIONS
 class DisparityNode(MatchingNode):
     INPUTS = stereo_inputs("image_rect")
     CALIBRATIONS = tuple(STEREO_CALIBRATIONS.items())
-    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, "cpu_threads")
+    OPTIONS = (*INPUT_OPTIONS, *DRIVER_FIX_OPTIONS, "cpu_threads", *ODOMETRY_OPTIONS)
     RECTIFIED = True
     OUTPUTS = (("disparity", DisparityImage),)  # always built, listened to or not
 

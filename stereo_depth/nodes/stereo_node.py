@@ -22,6 +22,7 @@ from stereo_depth.options import (
     CLOUD_OPTIONS,
     DRIVER_FIX_OPTIONS,
     INPUT_OPTIONS,
+    ODOMETRY_OPTIONS,
     REGISTRATION_OPTIONS,
 )
 from stereo_depth.ros.matching_node import MatchingNode, stereo_inputs
@@ -90,6 +91,7 @@ class StereoNode(MatchingNode):
         "matching_threads",
         "cpu_threads",
         *REGISTRATION_OPTIONS,
+        *ODOMETRY_OPTIONS,
     )
     MAX_FRAMES_AT_ONCE = 4
     OUTPUTS = tuple(OUTPUT_TYPES.items())

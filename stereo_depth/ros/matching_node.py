@@ -13,6 +13,9 @@ counted ("dropped clouds" in diagnostics).
 With rgb_in_left set (stereo_node), the node also reads a colour camera (ros/colour_input.py) and the
 second stage registers each frame's depth to the colour images paired with it (frames/registered.py),
 after the frame's own outputs went out; the four registered outputs exist only then.
+
+With left_in_base set, the node also reads the robot's odometry (ros/odom_input.py): the first stage waits
+for a frame's odometry before the temporal filter, and logs one line where the odometry stops or jumps.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from stereo_depth.core.pipeline import StereoResult, warm_up_kernels
 from stereo_depth.core.registration import compile_registration_kernels
 from stereo_depth.core.threads import use_threads
 from stereo_depth.frames import GEOMETRY_OUTPUTS, CloudJob
+from stereo_depth.frames.odometry import odometry_note
 from stereo_depth.frames.outputs import nearest_matchable_depth
 from stereo_depth.frames.registered import REGISTERED_OUTPUTS, ColourNames, RegisteredJob, unset_pose_line
 from stereo_depth.messages import RVL_FALLBACK_NOTE, compressed_depth_codec
@@ -40,6 +44,8 @@ from stereo_depth.ros import signals
 from stereo_depth.ros.colour_input import ColourInputs
 from stereo_depth.ros.latest_worker import LatestWorker
 from stereo_depth.ros.node_base import FrameJob
+from stereo_depth.ros.odom_input import OdometryInput, wait_for_odometry
+from stereo_depth.ros.qos import AdaptiveSubscription
 from stereo_depth.ros.stream_node import StreamNode
 from stereo_depth.sync import StereoSet
 
@@ -84,6 +90,7 @@ class MatchingNode(StreamNode):
         self._order_lock = threading.Lock()
         self._published = 0  # sequence number of the newest set whose outputs went out
         self._colour: ColourInputs | None = None  # from configure to cleanup, with rgb_in_left set
+        self._odometry: OdometryInput | None = None  # from configure to cleanup, with left_in_base set
         super().__init__(name, **kwargs)
 
     # ------------------------------------------------------------ registered depth (rgb_in_left)
@@ -96,10 +103,19 @@ class MatchingNode(StreamNode):
         names = super().output_names()
         return names if self.registering else [name for name in names if name not in REGISTERED_OUTPUTS]
 
+    @property
+    def with_odometry(self) -> bool:
+        return "left_in_base" in self.OPTIONS and self.parameters.settings.output.left_in_base.is_set
+
     def configure_io(self) -> None:
+        extra_topics = []
         if self.registering:
             self._colour = ColourInputs(self, self.parameters.settings.options)
-            self.extra_topics = self._colour.names
+            extra_topics += self._colour.names
+        if self.with_odometry:
+            self._odometry = OdometryInput(self)
+            extra_topics.append(self._odometry.topic)
+        self.extra_topics = extra_topics
         super().configure_io()
         if self._colour is not None:  # errors about the colour inputs name their topics
             self.stream.registration.names = ColourNames(*self._colour.names)
@@ -114,19 +130,29 @@ class MatchingNode(StreamNode):
                 self.report_bug,
             )
             self._io_timers.append(self.create_timer(1.0, self._colour.flush_when_idle))
+        if self._odometry is not None:
+            self._odometry.open(
+                self.parameters.settings.options, self.stream.odometry, self.diagnostics, self.report_bug
+            )
 
     def deactivate_io(self) -> None:
         if self._colour is not None:
             self._colour.close()
+        if self._odometry is not None:
+            self._odometry.close()
         super().deactivate_io()
 
     def cleanup_io(self) -> None:
         super().cleanup_io()
-        self._colour, self.extra_topics = None, []
+        self._colour, self._odometry, self.extra_topics = None, None, []
 
     @property
     def subscriptions_held(self) -> int:
-        return super().subscriptions_held + (len(self._colour.subscriptions) if self._colour is not None else 0)
+        return super().subscriptions_held + len(self._extra_subscriptions())
+
+    def _extra_subscriptions(self) -> list[AdaptiveSubscription]:
+        colour = self._colour.subscriptions if self._colour is not None else []
+        return colour + (self._odometry.subscriptions if self._odometry is not None else [])
 
     def inputs_paused(self) -> None:
         """No frame will come to decide the colour images still waiting: they pair with the frames seen."""
@@ -148,7 +174,7 @@ class MatchingNode(StreamNode):
 
     def _recheck_qos(self, everything: bool) -> None:
         super()._recheck_qos(everything)
-        for subscription in self._colour.subscriptions if self._colour is not None else ():
+        for subscription in self._extra_subscriptions():
             subscription.check(everything=everything)
 
     def _publish_diagnostics(self) -> None:
@@ -204,11 +230,16 @@ class MatchingNode(StreamNode):
         use_threads(settings.options.cpu_threads, self.frames_at_once(settings))
         matched = stream.matched(StereoSet.paired(job.stamp_ns, job.messages))
         stages = {"decode": matched.decode_ms}
+        if self._odometry is not None and settings.stereo is not None and settings.stereo.temporal_filter:
+            wait_for_odometry(stream.odometry, matched.frame.stamp_ns, settings.output.odom_wait_seconds)
         with self.outputs_in_order(job.sequence) as newest:
             if not newest:
                 return None
             wanted = self._wanted(settings.options)
             out = stream.outputs(matched, wanted)
+            if out.odometry_event is not None and self._odometry is not None:
+                note = odometry_note(out.odometry_event, self._odometry.topic)
+                self.problems.warn(note, ("odometry", out.odometry_event))
             if "right/image_rect" in wanted and (mismatch := camera_info_mismatch(settings)) is not None:
                 self.problems.warn_once(mismatch)
             if out.calibration_changed:
@@ -277,6 +308,8 @@ class MatchingNode(StreamNode):
         super()._settings_changed(settings)
         if self._colour is not None:
             self._colour.options_changed(old, settings.options)
+        if self._odometry is not None:
+            self._odometry.options_changed(settings.options)
         if self._cloud_stage is not None:  # None while a lifecycle node is not active
             self._cloud_stage.capacity = settings.options.max_waiting_frames
             self._cloud_stage.budget_s = settings.options.max_latency_ms / 1000.0
