@@ -209,7 +209,7 @@ def process_bag(
     choice = dataclasses.replace(
         options.topics or TopicChoice(namespace=options.namespace),
         with_rgb=bool(registered_outputs),
-        with_odom=options.output.left_in_base.is_set,
+        with_odom=options.output.left_in_base.is_set and params.temporal_filter,  # only the filter reads it
     )
     check_output(out_bag, options.overwrite)
     for folder in (options.png_dir, options.ply_dir):

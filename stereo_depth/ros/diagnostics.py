@@ -157,8 +157,8 @@ class NodeDiagnostics:
         if not quiet:
             return ""
         return (
-            f"no messages on {', '.join(quiet)} while {', '.join(arriving)} arrive: nothing can be paired; "
-            "check that camera's driver and the topic remapping (ros2 topic hz)"
+            f"no messages on {', '.join(quiet)} while {', '.join(arriving)} arrive; check its publisher (the "
+            "camera's driver, or the odometry) and the topic remapping (ros2 topic hz)"
         )
 
     def input_lost(self, topic: str, count: int) -> None:
