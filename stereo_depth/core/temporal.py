@@ -74,6 +74,7 @@ GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of 
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
 VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
 VIEW_TILES = 3  # in 3 x 3 tiles
+NEVER_SEEN = 2 * LONG_RUN  # the history's row that stays UNSEEN: what the unmoved old frames vote with
 STILL_PX = 0.25  # a remembered frame whose move would shift no pixel further stays where it is
 
 
@@ -201,8 +202,8 @@ class TemporalFilter:
     """The state of one stream of frames (one camera pair): feed it frames in stamp order."""
 
     def __init__(self) -> None:
-        # (2 * LONG_RUN, pixels): a ring of the last frames, rows before the last restart UNSEEN; then, row
-        # LONG_RUN + r, frame r moved into the newest frame's view (with odometry)
+        # (2 * LONG_RUN + 1, pixels): a ring of the last frames, rows before the last restart UNSEEN; then, row
+        # LONG_RUN + r, frame r moved into the newest frame's view (with odometry); last, NEVER_SEEN
         self._values: np.ndarray | None = None  # 1/16 px; HOLE: invalid; UNSEEN: before a restart, out of view
         self._weights: np.ndarray | None = None  # confidence 0..255; None: the matcher gives none
         self._poses: list[np.ndarray | None] = [None] * LONG_RUN  # per ring row: where its frame was taken
@@ -245,8 +246,8 @@ class TemporalFilter:
             or calibration != self._calibration
             or (confidence is None) != (self._weights is None)
         ):
-            self._values = np.full((2 * LONG_RUN, pixels), UNSEEN, np.int16)
-            self._weights = None if confidence is None else np.zeros((2 * LONG_RUN, pixels), np.uint8)
+            self._values = np.full((NEVER_SEEN + 1, pixels), UNSEEN, np.int16)
+            self._weights = None if confidence is None else np.zeros((NEVER_SEEN + 1, pixels), np.uint8)
             self._head, self._frames = -1, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
         explained = pose is not None and self._frames > 0 and self._poses[previous] is not None
@@ -311,14 +312,14 @@ class TemporalFilter:
             relative = here @ then  # the camera then, in this frame's camera
             if _largest_shift(relative, projection, shape, float(self._nearest[ring[age]])) <= STILL_PX:
                 continue
-            slots[age] = LONG_RUN + ring[age]
             if age >= MAX_HISTORY:
-                self._values[LONG_RUN + ring[age]] = UNSEEN
+                slots[age] = NEVER_SEEN
                 continue
+            slots[age] = LONG_RUN + ring[age]
             sources.append(ring[age])
             transforms.append(relative[:3])
         if sources:
-            weights = self._weights if self._weights is not None else np.zeros((2 * LONG_RUN, 1), np.uint8)
+            weights = self._weights if self._weights is not None else np.zeros((NEVER_SEEN + 1, 1), np.uint8)
             _kernels()["warp"](
                 self._values,
                 weights,
