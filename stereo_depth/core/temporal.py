@@ -517,6 +517,7 @@ def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width
     height = values.size // width
     row = np.empty(width, np.int32)
     filled = np.empty(width, np.uint8)  # per pixel: 0 kept, 1 from left and right, 2 from above and below
+    row_weights = np.empty(width, np.uint8)
     for v in range(1, height - 1):
         above = values[(v - 1) * width : v * width]
         here = values[v * width : (v + 1) * width]
@@ -533,19 +534,22 @@ def _close_cracks(values: np.ndarray, weights: np.ndarray, weighted: bool, width
             here[u + 1] = np.int16(mean) if fill else np.int16(centre)
             filled[u + 1] = (np.uint8(1) if across else np.uint8(2)) if fill else np.uint8(0)
         if weighted:
-            _crack_weights(weights, filled, v, width)
+            _crack_weights(weights, filled, v, width, row_weights)
 
 
-def _crack_weights(weights: np.ndarray, filled: np.ndarray, v: int, width: int) -> None:
-    """The confidences of row `v`'s closed cracks (`filled`: 1 from left and right, 2 from above and below)."""
+def _crack_weights(weights: np.ndarray, filled: np.ndarray, v: int, width: int, row: np.ndarray) -> None:
+    """The confidences of row `v`'s closed cracks (`filled`: 1 from left and right, 2 from above and below),
+    from a copy of the row (`row`, scratch), branch-free and on views indexed from 0, so it vectorises."""
     above = weights[(v - 1) * width : v * width]
     here = weights[v * width : (v + 1) * width]
     below = weights[(v + 1) * width : (v + 2) * width]
-    for u in range(1, width - 1):
-        if filled[u] == 1:
-            here[u] = min(here[u - 1], here[u + 1])
-        elif filled[u] == 2:
-            here[u] = min(above[u], below[u])
+    for u in range(width):
+        row[u] = here[u]
+    for u in range(width - 2):
+        across = min(row[u], row[u + 2])
+        along = min(above[u + 1], below[u + 1])
+        kind = filled[u + 1]
+        here[u + 1] = across if kind == 1 else (along if kind == 2 else row[u + 1])
 
 
 def _decays(alpha: float, history: int) -> np.ndarray:
@@ -866,11 +870,11 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     module["_frame_rows"] = numba.njit(cache=True, inline="always")(_frame_rows)
     module["_ages"] = numba.njit(cache=True, inline="always")(_ages)
     module["_filter_range"] = numba.njit(cache=True, nogil=True)(_filter_range)
-    module["_crack_weights"] = numba.njit(cache=True, nogil=True)(_crack_weights)
+    module["_crack_weights"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_crack_weights)
     module["_mean_disparity"] = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(
         _mean_disparity
     )
-    module["_close_cracks"] = numba.njit(cache=True, nogil=True, inline="always")(_close_cracks)
+    module["_close_cracks"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_close_cracks)
     module["_warp_row"] = numba.njit(cache=True, nogil=True, error_model="numpy")(_warp_row)  # no zero checks:
     # a division by zero gives inf, which the projection's tests reject, and the loop vectorises
     return {
