@@ -17,7 +17,6 @@ import numpy as np
 from stereo_depth.bag.types import rosbags_types, typestore
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.core.camera import CameraInfo
-from stereo_depth.core.odometry import pose_matrix
 from stereo_depth.core.pose import Pose
 from stereo_depth.formats.scenes import load_scene
 from stereo_depth.messages import array_to_image, camera_info_to_msg, make_header
@@ -43,8 +42,7 @@ def left_in_base_text() -> str:
 
 
 def left_in_base_matrix() -> np.ndarray:
-    pose = Pose.from_list(LEFT_IN_BASE)
-    return pose_matrix(pose.translation, pose.rotation)
+    return Pose.from_list(LEFT_IN_BASE).matrix()
 
 
 def pitch(t_s: float) -> tuple[float, float]:

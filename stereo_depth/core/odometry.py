@@ -26,7 +26,10 @@ import threading
 import time
 from typing import NamedTuple
 
+import cv2
 import numpy as np
+
+from stereo_depth.core.pose import pose_matrix
 
 JUMP_METRES = 0.1  # a position change this far beyond what the twist explains is a jump
 JUMP_RADIANS = 0.1  # likewise for the orientation
@@ -124,19 +127,6 @@ class OdometryTrack:
         )
 
 
-def pose_matrix(position: tuple[float, float, float] | np.ndarray, orientation: tuple[float, ...]) -> np.ndarray:
-    """4x4 float64 of a translation and a unit quaternion (x, y, z, w)."""
-    x, y, z, w = orientation
-    out = np.eye(4)
-    out[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
-    out[:3, 3] = position
-    return out
-
-
 def _lerp(a: tuple[float, ...], b: tuple[float, ...], share: float) -> np.ndarray:
     start = np.asarray(a, np.float64)
     between: np.ndarray = start + (np.asarray(b, np.float64) - start) * share
@@ -158,16 +148,9 @@ def _slerp(a: tuple[float, ...], b: tuple[float, ...], share: float) -> tuple[fl
 
 
 def _rotation_vector(rotation: np.ndarray) -> np.ndarray:
-    """The axis times the angle of a 3x3 rotation (angles up to pi)."""
-    angle = float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
-    if angle < 1e-9:
-        return np.zeros(3)
-    axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
-    norm = float(np.linalg.norm(axis))
-    if norm < 1e-9:  # a half turn: the axis from the diagonal
-        axis = np.sqrt(np.clip((np.diag(rotation) + 1.0) / 2.0, 0.0, None))
-        norm = float(np.linalg.norm(axis))
-    return axis / norm * angle
+    """The axis times the angle of a 3x3 rotation."""
+    vector, _ = cv2.Rodrigues(rotation)
+    return np.asarray(vector, np.float64).reshape(3)
 
 
 def _jumped(a: OdometrySample, b: OdometrySample) -> bool:

@@ -61,14 +61,11 @@ class Pose:
         if not self.is_set:
             msg = "an unset pose has no rotation; check is_set first"
             raise ValueError(msg)
-        x, y, z, w = self.rotation
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ]
-        )
+        return quaternion_matrix(self.rotation)
+
+    def matrix(self) -> np.ndarray:
+        """The 4x4 homogeneous transform (float64): B's points to A's."""
+        return pose_matrix(self.translation, self.rotation)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Points (..., 3) given in B, in A."""
@@ -93,6 +90,26 @@ class Pose:
         x, y, z, w = self.rotation
         tx, ty, tz = -(self.rotation_matrix().T @ np.array(self.translation))
         return Pose((float(tx), float(ty), float(tz)), (-x, -y, -z, w))
+
+
+def quaternion_matrix(rotation: Sequence[float]) -> np.ndarray:
+    """The 3x3 rotation (float64) of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = rotation
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def pose_matrix(translation: Sequence[float] | np.ndarray, rotation: Sequence[float]) -> np.ndarray:
+    """4x4 float64 of a translation and a unit quaternion (x, y, z, w)."""
+    out = np.eye(4)
+    out[:3, :3] = quaternion_matrix(rotation)
+    out[:3, 3] = translation
+    return out
 
 
 UNSET_POSE = Pose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))

@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from stereo_depth.core.odometry import OdometryTrack, pose_matrix
+from stereo_depth.core.odometry import OdometryTrack
 from stereo_depth.core.params import StereoParams
 from stereo_depth.core.pipeline import StereoResult
 from stereo_depth.core.temporal import CameraMotion, Projection
@@ -94,4 +94,4 @@ def camera_in_base(output: OutputOptions, rectification: np.ndarray) -> np.ndarr
     pose = output.left_in_base
     rectified_in_raw = np.eye(4)
     rectified_in_raw[:3, :3] = np.asarray(rectification, np.float64).T
-    return pose_matrix(pose.translation, pose.rotation) @ rectified_in_raw
+    return pose.matrix() @ rectified_in_raw
