@@ -26,6 +26,7 @@ from stereo_depth.bag.recording import open_reader
 from stereo_depth.bag.writer import BagWriter
 from stereo_depth.cli import main
 from stereo_depth.core.params import make_params
+from stereo_depth.core.temporal import lead_in_frames
 from stereo_depth.fleet.tasks import STOPPED, Task, run_task
 
 from conftest import SCENES, euroc_sequence
@@ -303,15 +304,34 @@ def test_shards_with_the_temporal_filter_equal_one_pass(capsys: pytest.CaptureFi
     assert messages(out / "euroc") == one_pass
 
 
+def test_shards_read_back_as_many_frames_as_the_temporal_filter_looks_back_over(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A 30 Hz bag's second shard starts 138 frames in: its lead-in reaches back to the bag's start (the
+    filter's presence counts up to 128 frames of a still view), so it equals one pass."""
+    (tmp_path / "inputs").mkdir()
+    bag = make_bag(tmp_path / "inputs" / "still", *[SCENES / "artl"] * (lead_in_frames() + 18), rate=30.0)
+    temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]
+    assert main(["process", str(bag), str(tmp_path / "one_pass"), *FAST, *temporal]) == 0
+    out = tmp_path / "sharded"
+    code, errors, _ = run_fleet(capsys, str(bag), "--out-dir", str(out), "--shard-seconds", "4.6", *FAST, *temporal)
+    assert code == 0, errors
+    assert messages(out / "still") == messages(tmp_path / "one_pass")
+
+
 def test_shards_too_slow_for_the_temporal_filters_lead_in_are_refused(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """At 2 Hz a 2 s lead-in holds 4 frames, not the 20 the filter needs: an error, not a different output."""
+    """At 2 Hz the lead-in, read back as for 10 Hz, holds 26 frames, not the 132 the filter needs: an
+    error, not a different output."""
     (tmp_path / "inputs").mkdir()
-    bag = make_bag(tmp_path / "inputs" / "slow", *[SCENES / "artl"] * 12, rate=2.0)
+    bag = make_bag(tmp_path / "inputs" / "slow", *[SCENES / "artl"] * 40, rate=2.0)
     temporal = ["--set", "temporal_filter=true", "--set", "fill_holes=false"]
-    code, errors, _ = run_fleet(capsys, str(bag), "--out-dir", str(tmp_path / "out"), "--shard-seconds", "3", *temporal)
-    assert code == 1 and len(errors) == 1 and "needs 20 frames before it" in errors[0], errors
+    code, errors, _ = run_fleet(
+        capsys, str(bag), "--out-dir", str(tmp_path / "out"), "--shard-seconds", "15", *FAST, *temporal
+    )
+    assert code == 1 and len(errors) == 1, errors
+    assert f"needs {lead_in_frames()} frames before it" in errors[0], errors
     assert not (tmp_path / "out" / "slow").exists()
 
 

@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core.temporal import LONG_RUN, TemporalFilter, TemporalSettings, lead_in_frames
+from stereo_depth.core.temporal import LONG_RUN, PRESENCE_RUN, TemporalFilter, TemporalSettings, lead_in_frames
 from stereo_depth.errors import ParameterError
 
 PERIOD_NS = 33_333_333
-SETTINGS = TemporalSettings()  # the defaults: alpha 0.2, delta 2 px, 4 of the last 8 frames, valid in half of 16
+SETTINGS = TemporalSettings()  # the defaults: alpha 0.2, delta 2 px, 4 of the last 8 frames, valid in 0.4
 CALIBRATION = ("camera", 1)
 
 
@@ -60,17 +60,45 @@ def test_a_pixel_whose_noise_spreads_wider_than_delta_stays_valid() -> None:
 
 
 def test_a_wrong_match_that_comes_back_in_runs_where_the_pixel_is_mostly_a_hole_is_never_output() -> None:
-    """A real sensor's errors repeat: runs of 4 frames pass persistence, not presence (half of 16)."""
-    frames = [frame(np.nan) for _ in range(40)]
+    """A real sensor's errors repeat: runs of 5 frames pass persistence, not presence (0.4 of the frames;
+    these come back in 5 of every 16)."""
+    frames = [frame(np.nan) for _ in range(80)]
     for k, d in enumerate(frames):
         if k % 8 < 4:  # valid in half the frames: in runs of 4 with 4-frame holes between
             d[0, 0] = 20.0
         if k % 16 < 5:  # valid in 5 of every 16 frames, in runs of 5
             d[1, 1] = 50.0
     out = feed(TemporalFilter(), frames)
-    assert all(np.isnan(o[1, 1]) for o in out[LONG_RUN:])  # (before, presence counts the frames seen)
+    assert all(np.isnan(o[1, 1]) for o in out[3 * LONG_RUN :])  # (before, few frames tell the share)
     assert all(o[0, 0] == 20.0 for o in out[LONG_RUN:] if not np.isnan(o[0, 0]))
     assert sum(not np.isnan(o[0, 0]) for o in out[LONG_RUN:]) >= (len(out) - LONG_RUN) // 2
+
+
+def test_on_a_still_view_presence_looks_back_further_than_the_last_16_frames() -> None:
+    """A wrong match that comes back in runs of 8 frames every 24: half of a 16-frame window while it
+    lasts, a third of the frames over the long run. While the view holds still, presence counts up to
+    PRESENCE_RUN frames, so it never reaches the output; a pixel valid in half the frames does."""
+    frames = [frame(np.nan) for _ in range(PRESENCE_RUN + 72)]
+    for k, d in enumerate(frames):
+        if k % 24 < 8:
+            d[0, 0] = 30.0
+        if k % 24 < 12:
+            d[1, 1] = 40.0
+    out = feed(TemporalFilter(), frames)
+    assert all(np.isnan(o[0, 0]) for o in out[4 * 24 :])
+    assert sum(o[1, 1] == 40.0 for o in out[PRESENCE_RUN:]) >= 0.4 * (len(out) - PRESENCE_RUN)
+
+
+def test_a_restart_forgets_the_frames_presence_counted() -> None:
+    """A pixel that was a hole for a long time, then valid after the stream restarted (a stamp gap: the
+    camera may have been moved): it is output as soon as persistence allows, not held back by the holes
+    of before."""
+    frames = [frame(np.nan) for _ in range(PRESENCE_RUN)] + [frame(25.0) for _ in range(12)]
+    temporal = TemporalFilter()
+    feed(temporal, frames[:PRESENCE_RUN])
+    out = feed(temporal, frames[PRESENCE_RUN:], first=PRESENCE_RUN + 10)
+    assert all(np.isnan(o).all() for o in out[: SETTINGS.persistence - 1])
+    assert all((o == 25.0).all() for o in out[SETTINGS.persistence - 1 :])
 
 
 def test_a_value_that_alternates_with_the_pixels_long_run_value_is_not_output() -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereo_depth.core.temporal import CameraMotion, Projection, TemporalFilter, TemporalSettings
+from stereo_depth.core.temporal import PRESENCE_RUN, CameraMotion, Projection, TemporalFilter, TemporalSettings
 
 PERIOD_NS = 33_333_333
 SETTINGS = TemporalSettings()
@@ -140,3 +140,34 @@ def test_where_a_moved_frame_lands_two_surfaces_on_a_pixel_the_nearer_one_wins()
         out = temporal.apply(truth, None, k * PERIOD_NS, CALIBRATION, SETTINGS, motion=CameraMotion(pose, PROJECTION))
     box = cv2.erode((truth > 15.0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     np.testing.assert_allclose(out[box], truth[box], atol=0.1)
+
+
+def test_after_the_robot_moves_presence_counts_the_frames_of_the_new_view_only() -> None:
+    """Parked for PRESENCE_RUN frames before a wall whose left part is textureless (holes), then 16
+    frames driving and turning right, then parked again: the textured wall now under the pixels that
+    saw the holes is output as soon as the new view's frames allow, not held back by the holes the
+    still view counted there."""
+    rng = np.random.default_rng(7)
+    poses = [np.eye(4)] * PRESENCE_RUN + [camera_pose(k) for k in range(1, 17)] + [camera_pose(16)] * 12
+    temporal = TemporalFilter()
+    for k, pose in enumerate(poses):
+        d = noisy(true_disparity(pose), rng)
+        d[wall_x(pose) < WALL_HOLES] = np.nan
+        out = temporal.apply(d, None, k * PERIOD_NS, CALIBRATION, SETTINGS, motion=CameraMotion(pose, PROJECTION))
+    saw_holes = wall_x(np.eye(4)) < WALL_HOLES
+    textured_now = wall_x(poses[-1]) >= WALL_HOLES
+    assert (saw_holes & textured_now).sum() > 1000
+    assert np.isfinite(out[saw_holes & textured_now]).mean() > 0.8
+
+
+WALL_HOLES = -0.7  # m: the wall is textureless left of this x (the matcher finds nothing there)
+
+
+def wall_x(pose: np.ndarray) -> np.ndarray:
+    """Where each pixel's ray meets the wall: x in the first camera's frame, m."""
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    rays = np.stack([(u - PROJECTION.cx) / PROJECTION.fx, (v - PROJECTION.cy) / PROJECTION.fy, np.ones_like(u)], -1)
+    directions = rays @ pose[:3, :3].T
+    along = (WALL_Z - pose[2, 3]) / directions[..., 2]
+    x: np.ndarray = pose[0, 3] + along * directions[..., 0]
+    return x

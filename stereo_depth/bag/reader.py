@@ -104,6 +104,9 @@ class TopicChoice:
         return self.calibration is None and self.need_info
 
 
+LEAD_IN_PERIOD_NS = 100_000_000  # a shard's lead-in frames are read back at 10 Hz: slower bags are refused
+
+
 @dataclass(frozen=True)
 class TimeWindow:
     """The sets one shard of a long bag owns: set stamps in [start_ns, stop_ns) (None: unbounded).
@@ -348,12 +351,15 @@ class StereoBagReader:
         lead_in_frames: int = 0,
     ) -> None:
         """`lead_in_frames`: with a window, yield (as `lead_in`) up to this many sets paired before its
-        start, just before its first own set."""
+        start, just before its first own set; the window's lead-in time grows to hold them at 10 Hz."""
         self.path = Path(path)
         self.lead_in_frames = lead_in_frames
         self.policy = sync or NodeOptions()  # the live node's sync options and defaults
         self.choice = choice or TopicChoice(namespace=namespace)
         self.window = window or TimeWindow()
+        if lead_in_frames:
+            lead_ns = max(self.window.lead_ns, lead_in_frames * LEAD_IN_PERIOD_NS)
+            self.window = dataclasses.replace(self.window, lead_ns=lead_ns)
         self._reader = open_reader(self.path)
         try:
             self.topics = chosen_topics(self.topic_types(), self.choice)

@@ -121,9 +121,10 @@ class StereoParams:
         1.0,
     )
     temporal_presence: float = option(
-        0.5,
-        "Temporal filter: share of the last 16 frames a pixel must be valid in to be output (a wrong match "
-        "in a place that is mostly a hole, even one that comes back a few frames in a row, is not)",
+        0.4,
+        "Temporal filter: share of the frames a pixel must be valid in to be output: the last 16, and while "
+        "the view holds still up to the last 128 (a wrong match in a place that is mostly a hole, even one "
+        "that comes back for several frames in a row, is not)",
         0.0,
         1.0,
     )

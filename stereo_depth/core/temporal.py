@@ -11,9 +11,12 @@ with it, each vote weighed by that frame's confidence. A candidate passes when
   of the last n": a wrong match seen once has no support);
 - the disagree rule: over those frames, its confidence-weighted support is no less than its weighted
   conflict (a pixel that flips between two values is not output);
-- the long-run rules, over the last `LONG_RUN` frames: the pixel was valid in at least `presence` of
-  them (a wrong match in a place that is mostly a hole comes back in runs of a few frames on a real
-  sensor, and persistence alone would pass each run), and, when its supporting frames alternate with
+- presence: the pixel was valid in at least `presence` of the frames that saw it, over the last
+  `LONG_RUN` frames and, while the view holds still, the frames before them, up to `PRESENCE_RUN` in
+  all (a wrong match in a place that is mostly a hole comes back in runs of several frames on a real
+  sensor, and persistence, or a share over the last 16 frames, would pass each run; over a still
+  view's few seconds the share is steady, so a pixel is output most of the time or not at all);
+- the long-run rule, over the last `LONG_RUN` frames: when its supporting frames alternate with
   conflicting ones (the pixel keeps switching surfaces, or the wrong value was seen before), its
   weighted support over the long run is no less than the conflict. A clean change (every conflicting
   frame older than every supporting one: an object arrived) is exempt, so new surfaces appear as soon
@@ -30,8 +33,9 @@ frame's weight; older frames' weights fall by 1 - alpha per frame; each also wei
 taken as the candidate plus its supporters' average offset, so equal values average to themselves
 exactly, and rounded to 1/16 px, the step the history holds and DisparityImage announces (delta_d).
 
-The output is a function of the last frames alone (no recursion over the whole stream), so a bag cut into
-shards gives bit-identical results once each shard is fed `lead_in_frames` frames before its first.
+The output is a function of the last `PRESENCE_RUN` frames alone (no recursion over the whole stream), so
+a bag cut into shards gives bit-identical results once each shard is fed `lead_in_frames` frames before
+its first.
 Everything restarts (the history is emptied) when the stamp goes back (a looping bag, a restarted
 driver), when more than `GAP_PERIODS` frame periods pass without a frame, when the calibration or the
 image size changes, and, with `motion_reset`, when more than that share of the pixels valid in both
@@ -46,7 +50,8 @@ With odometry (`CameraMotion`: the rectified left camera's pose at each frame), 
 the camera instead: before the vote, each remembered frame is projected into this frame's view through
 its own depth and the relative pose between the two frames (a forward warp: the nearest point wins a
 pixel, one-pixel cracks are closed), so a still surface agrees with itself while the robot drives or
-turns, and the image test stands down while the odometry explains the motion. Each frame is moved from
+turns, and the image test stands down while the odometry explains the motion; presence then counts the
+frames since the history last moved only. Each frame is moved from
 where it was taken, never from a moved copy, so the error does not build up. A frame without a pose
 (its odometry late) is voted on unmoved, with the image test; one whose odometry stopped or jumped
 restarts everything.
@@ -70,6 +75,7 @@ from stereo_depth.errors import ParameterError
 
 MAX_HISTORY = 8  # frames: RealSense's "k of the last 8"
 LONG_RUN = 16  # frames the long-run rules look back over
+PRESENCE_RUN = 128  # frames presence looks back over while the view holds still
 GAP_PERIODS = 4.0  # a gap longer than this many frame periods (the shortest of the last intervals) restarts
 PERIOD_STAMPS = 4  # the stamps whose intervals give the frame period
 VIEW_SCALE = 4  # the ego-motion test compares the views at a quarter of their size
@@ -87,7 +93,7 @@ class TemporalSettings:
     persistence: int = 4
     history: int = MAX_HISTORY
     motion_reset: float = 0.0  # share of changed pixels that restarts every pixel; 0: off
-    presence: float = 0.5  # share of the last LONG_RUN frames a pixel must be valid in
+    presence: float = 0.4  # share of the frames a pixel must be valid in (up to PRESENCE_RUN while still)
     ego_motion: float = 0.5  # px the view may shift between frames before the filter stands aside; 0: off
 
     def validate(self) -> TemporalSettings:
@@ -194,8 +200,8 @@ def _largest_shift(relative: np.ndarray, projection: Projection, shape: tuple[in
 
 def lead_in_frames() -> int:
     """Frames before a shard's first that give it the state one pass has there: the output depends on
-    the last LONG_RUN frames, and the restarts among them on the PERIOD_STAMPS stamps before each."""
-    return LONG_RUN + PERIOD_STAMPS
+    the last PRESENCE_RUN frames, and the restarts among them on the PERIOD_STAMPS stamps before each."""
+    return PRESENCE_RUN + PERIOD_STAMPS
 
 
 class TemporalFilter:
@@ -210,6 +216,12 @@ class TemporalFilter:
         self._nearest = np.zeros(LONG_RUN)  # per ring row: its largest disparity, px (how far its points move)
         self._head = -1  # row of the newest frame
         self._frames = 0  # frames since the last restart
+        self._still = 0  # the newest frames in this view: since the last restart or the history's last move
+        # presence beyond the ring: per pixel, of the frames of ages LONG_RUN.. in this view (up to
+        # PRESENCE_RUN - LONG_RUN of them), those it was valid in; and their validity, a bit per pixel
+        self._older_valid = np.zeros(0, np.uint8)
+        self._older_bits = np.zeros((0, 0), np.uint8)
+        self._older_frames = 0
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
         self._calibration: Hashable = None
         self._view: np.ndarray | None = None  # the last frame's view, small, for the ego-motion test
@@ -218,8 +230,9 @@ class TemporalFilter:
     def reset(self) -> None:
         """Forget every frame (the filter was switched off, or the stream starts anew)."""
         self._values = self._weights = self._view = None
+        self._older_valid, self._older_bits = np.zeros(0, np.uint8), np.zeros((0, 0), np.uint8)
         self._poses = [None] * LONG_RUN
-        self._head, self._frames, self._calibration = -1, 0, None
+        self._head, self._frames, self._still, self._older_frames, self._calibration = -1, 0, 0, 0, None
         self._standing_aside = False
         self._stamps.clear()
 
@@ -248,7 +261,9 @@ class TemporalFilter:
         ):
             self._values = np.full((NEVER_SEEN + 1, pixels), UNSEEN, np.int16)
             self._weights = None if confidence is None else np.zeros((NEVER_SEEN + 1, pixels), np.uint8)
-            self._head, self._frames = -1, 0
+            self._older_valid = np.zeros(pixels, np.uint8)
+            self._older_bits = np.zeros((PRESENCE_RUN - LONG_RUN, -(-pixels // 8)), np.uint8)
+            self._head, self._frames, self._still, self._older_frames = -1, 0, 0, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
         explained = pose is not None and self._frames > 0 and self._poses[previous] is not None
         turned = self._view_moved(view, settings.ego_motion) and not explained  # odometry explains the shift
@@ -256,6 +271,8 @@ class TemporalFilter:
         slots = ring
         if pose is not None and motion is not None and self._frames:
             slots = self._moved_history(ring, pose, motion.projection, disparity.shape, settings.delta)
+        self._still = 1 if (slots != ring).any() else self._still + 1
+        self._age_out()
         both, changed = kernels["store"](
             disparity.reshape(-1),
             None if confidence is None else confidence.reshape(-1),
@@ -269,7 +286,10 @@ class TemporalFilter:
         if self._frames == 0 or moved or turned or forget or self._stamp_breaks(stamp_ns):
             self._values[ring[1:]] = UNSEEN
             slots = ring
-            self._frames = 0
+            self._frames, self._still = 0, 1
+        if self._still == 1:
+            self._older_frames = 0
+            self._older_valid.fill(0)
         self._poses[self._head] = pose
         self._nearest[self._head] = np.fmax.reduce(disparity, axis=None) if pose is not None else 0.0
         self._standing_aside = turned or self._standing_aside
@@ -286,6 +306,8 @@ class TemporalFilter:
             np.float32(settings.delta),
             np.float32(settings.persistence),
             np.float32(settings.presence),
+            self._older_valid,
+            np.float32(self._older_frames),
             out,
             _threads(),
         )
@@ -293,6 +315,21 @@ class TemporalFilter:
             return disparity.astype(np.float32, copy=True)  # no worse than no filter while the view moves
         self._standing_aside = False
         return out.reshape(disparity.shape)
+
+    def _age_out(self) -> None:
+        """The frame about to leave the ring (age LONG_RUN) into the presence counts beyond it, when this
+        view has held since it was taken; the oldest of those leaves once PRESENCE_RUN frames are counted."""
+        assert self._values is not None
+        if self._frames < LONG_RUN or self._still <= LONG_RUN:
+            return
+        rows = PRESENCE_RUN - LONG_RUN
+        _kernels()["age_out"](
+            self._values[self._head],
+            self._older_valid,
+            self._older_bits[(self._frames - LONG_RUN) % rows],
+            self._older_frames == rows,
+        )
+        self._older_frames = min(self._older_frames + 1, rows)
 
     def _moved_history(
         self, ring: np.ndarray, pose: np.ndarray, projection: Projection, shape: tuple[int, ...], delta: float
@@ -401,6 +438,21 @@ def _store(
             both += 1
             changed += int(abs(np.int32(fixed) - np.int32(previous[p])) > limit)
     return both, changed
+
+
+def _age_out(leaving: np.ndarray, counts: np.ndarray, bits: np.ndarray, full: bool) -> None:
+    """A frame's validity (`leaving`, 1/16 px) into the per-pixel counts of valid frames, and into
+    `bits` (a bit per pixel); `full`: the frame `bits` held leaves the counts first."""
+    for byte in prange(bits.size):
+        old = np.int32(bits[byte]) if full else np.int32(0)
+        new = np.int32(0)
+        for bit in range(8):
+            p = byte * 8 + bit
+            if p < leaving.size:
+                valid = np.int32(leaving[p] > UNSEEN)
+                new |= valid << bit
+                counts[p] = np.uint8(np.int32(counts[p]) + valid - ((old >> bit) & 1))
+        bits[byte] = np.uint8(new)
 
 
 def _warp_rows(
@@ -572,6 +624,8 @@ def _filter_pixels(
     delta: np.float32,
     persistence: np.float32,
     presence: np.float32,
+    older_valid: np.ndarray,
+    older_frames: np.float32,
     out: np.ndarray,
     parts: int,
 ) -> None:
@@ -584,8 +638,9 @@ def _filter_pixels(
 
     `slots`: the LONG_RUN rows, newest first (rows of frames before a restart are UNSEEN: they vote for
     nothing); `short[age]` 1 for the frames of the short window, else 0 (and `decays[age]` 0).
-    `presence`: the share of the frames that saw a pixel it must be valid in. The pixels are cut into
-    `parts` runs, one per thread; each pixel's result is the same whatever the count."""
+    `presence`: the share of the frames that saw a pixel it must be valid in: the ring's, and the
+    `older_frames` of this view before them (the pixel valid in `older_valid` of those). The pixels are
+    cut into `parts` runs, one per thread; each pixel's result is the same whatever the count."""
     for part in prange(parts):
         _filter_range(
             values,
@@ -596,6 +651,8 @@ def _filter_pixels(
             delta,
             persistence,
             presence,
+            older_valid,
+            older_frames,
             out,
             part * out.size // parts,
             (part + 1) * out.size // parts,
@@ -611,6 +668,8 @@ def _filter_range(
     delta: np.float32,
     persistence: np.float32,
     presence: np.float32,
+    older_valid: np.ndarray,
+    older_frames: np.float32,
     out: np.ndarray,
     first: int,
     last: int,
@@ -626,6 +685,7 @@ def _filter_range(
     d = _ages(decays)
     h = _ages(short)
     result = out[first:last]
+    older = older_valid[first:last]
     if weights is None:
         for i in range(last - first):
             a, b, c = np.float32(r[0][i]), np.float32(r[1][i]), np.float32(r[2][i])
@@ -656,7 +716,7 @@ def _filter_range(
             t = _long_vote(t, r[13][i], one, x, long_limit)
             t = _long_vote(t, r[14][i], one, x, long_limit)
             t = _long_vote(t, r[15][i], one, x, long_limit)
-            result[i] = mean if _long_run_passes(t, presence) else np.float32(np.nan)
+            result[i] = mean if _long_run_passes(t, presence, older[i], older_frames) else np.float32(np.nan)
     else:
         w = _frame_rows(weights, slots, first, last)
         for i in range(last - first):
@@ -688,7 +748,7 @@ def _filter_range(
             t = _long_vote(t, r[13][i], np.float32(w[13][i]), x, long_limit)
             t = _long_vote(t, r[14][i], np.float32(w[14][i]), x, long_limit)
             t = _long_vote(t, r[15][i], np.float32(w[15][i]), x, long_limit)
-            result[i] = mean if _long_run_passes(t, presence) else np.float32(np.nan)
+            result[i] = mean if _long_run_passes(t, presence, older[i], older_frames) else np.float32(np.nan)
 
 
 def _frame_rows(frames: np.ndarray, slots: np.ndarray, first: int, last: int) -> tuple[np.ndarray, ...]:
@@ -771,11 +831,16 @@ def _chosen(
     return x, np.float32(np.rint(mean) * np.float32(1.0 / SUBPIXELS))  # NaN stays NaN
 
 
-def _long_run_passes(long_run: tuple[np.float32, ...], presence: np.float32) -> bool:
-    """The long-run rules: presence, and a majority when supporters and conflicts interleave (a pixel
-    that keeps switching between two surfaces, half and half, is output as neither)."""
+def _long_run_passes(
+    long_run: tuple[np.float32, ...], presence: np.float32, older_valid: np.uint8, older_frames: np.float32
+) -> bool:
+    """The long-run rules: presence, over the ring's frames that saw the pixel and the `older_frames`
+    before them in this view (valid in `older_valid` of those), and a majority when supporters and
+    conflicts interleave (a pixel that keeps switching between two surfaces, half and half, is output as
+    neither)."""
     long_for, long_against, _, interleaved, valid, seen = long_run
-    return bool((valid >= presence * seen) & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
+    present = valid + np.float32(older_valid) >= presence * (seen + older_frames)
+    return bool(present & ((interleaved == np.float32(0.0)) | (long_for > long_against)))
 
 
 def _long_vote(
@@ -879,6 +944,7 @@ def _kernels() -> dict[str, Callable[..., Any]]:
     # a division by zero gives inf, which the projection's tests reject, and the loop vectorises
     return {
         "store": numba.njit(cache=True, nogil=True, parallel=True)(_store),
+        "age_out": numba.njit(cache=True, nogil=True, parallel=True)(_age_out),
         "filter": numba.njit(cache=True, nogil=True, parallel=True)(_filter_pixels),
         "warp": numba.njit(cache=True, nogil=True, parallel=True)(_warp_rows),
     }
