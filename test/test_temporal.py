@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
 
-from stereo_depth.core.temporal import LONG_RUN, PRESENCE_RUN, TemporalFilter, TemporalSettings, lead_in_frames
+from stereo_depth.core.temporal import (
+    LONG_RUN,
+    PRESENCE_RUN,
+    TemporalFilter,
+    TemporalSettings,
+    lead_in_frames,
+)
 from stereo_depth.errors import ParameterError
 
 PERIOD_NS = 33_333_333
@@ -286,3 +295,15 @@ def test_settings_are_checked() -> None:
         TemporalSettings(persistence=9).validate()
     with pytest.raises(ParameterError, match="temporal_alpha"):
         TemporalSettings(alpha=0.0).validate()
+
+
+def test_start_up_compiles_every_kernel_a_stream_of_frames_runs() -> None:
+    """`stereo-depth compile` and a node's start-up build them, so no frame, the 17th included (when
+    presence starts counting older frames), waits for numba. In a process of its own: the other tests
+    have run the kernels in this one."""
+    check = (
+        "from stereo_depth.core import temporal; temporal.compile_kernels(); "
+        "print(sorted(name for name, kernel in temporal._kernels().items() if not kernel.signatures))"
+    )
+    result = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"

@@ -148,16 +148,16 @@ def compile_kernels() -> None:
     for confidence in (None, True):
         temporal = TemporalFilter()
         projection = Projection(1.0, 1.0, 0.5, 0.5, 1.0, 0.0)
-        for stamp in (1, 2):
+        for stamp in range(1, LONG_RUN + 3):
             pose = np.eye(4)
-            pose[0, 3] = stamp  # moved: the history's move runs
+            pose[0, 3] = stamp  # moved once (the history's move runs), then unknown: presence's count runs
             temporal.apply(
                 np.ones((3, 3), np.float32),
                 None if confidence is None else np.ones((3, 3), np.float32),
                 stamp,
                 None,
                 TemporalSettings(motion_reset=0.5),
-                motion=CameraMotion(pose, projection),
+                motion=CameraMotion(pose if stamp <= 2 else None, projection),
             )
 
 
