@@ -256,22 +256,24 @@ def test_the_output_depends_on_the_last_frames_only() -> None:
     and the stamps that decide the restarts among them."""
     rng = np.random.default_rng(1)
     surface = rng.uniform(5, 60, (30, 30))
+    holes = rng.uniform(0.3, 0.75, surface.shape)  # per pixel: many near the presence share
 
     def frames(n: int) -> list[np.ndarray]:
-        """The surface with noise, holes in 40 % of the pixels and wrong values in 10 %, fresh each frame."""
+        """The surface with noise, holes in 30-75 % of the frames and wrong values in 10 %, fresh each frame."""
         out = []
         for _ in range(n):
             d = (surface + rng.normal(0.0, 0.7, surface.shape)).astype(np.float32)
             d[rng.random(d.shape) < 0.1] = rng.uniform(5, 60)
-            d[rng.random(d.shape) < 0.4] = np.nan
+            d[rng.random(d.shape) < holes] = np.nan
             out.append(d)
         return out
 
     lead = lead_in_frames()
     past, common = frames(23), frames(lead + 5)
-    # past frames 1 period apart, the common ones 2; a gap of 5 periods before the first frame whose
-    # restart would reach the first output compared: one only when the stamps before it include the past's
-    gap_at = lead - 14
+    # past frames 1 period apart, the common ones 2; a gap of 5 periods on the first frame whose restart
+    # reaches the first output compared (through presence): a restart only when the stamps before it
+    # include the past's
+    gap_at = lead - PRESENCE_RUN + 2
     stamps = [k * PERIOD_NS for k in range(len(past))]
     for k in range(len(common)):
         stamps.append(stamps[-1] + (5 if k == gap_at else 2) * PERIOD_NS)
