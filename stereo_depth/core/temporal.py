@@ -218,10 +218,9 @@ class TemporalFilter:
         self._frames = 0  # frames since the last restart
         self._still = 0  # the newest frames in this view: since the last restart or the history's last move
         # presence beyond the ring: per pixel, of the frames of ages LONG_RUN.. in this view (up to
-        # PRESENCE_RUN - LONG_RUN of them), those it was valid in; and their validity, a bit per pixel
+        # PRESENCE_RUN - LONG_RUN of them: `_older_frames`), those it was valid in; their validity, a bit a pixel
         self._older_valid = np.zeros(0, np.uint8)
         self._older_bits = np.zeros((0, 0), np.uint8)
-        self._older_frames = 0
         self._stamps: deque[int] = deque(maxlen=PERIOD_STAMPS)  # the last stamps, across restarts
         self._calibration: Hashable = None
         self._view: np.ndarray | None = None  # the last frame's view, small, for the ego-motion test
@@ -232,7 +231,7 @@ class TemporalFilter:
         self._values = self._weights = self._view = None
         self._older_valid, self._older_bits = np.zeros(0, np.uint8), np.zeros((0, 0), np.uint8)
         self._poses = [None] * LONG_RUN
-        self._head, self._frames, self._still, self._older_frames, self._calibration = -1, 0, 0, 0, None
+        self._head, self._frames, self._still, self._calibration = -1, 0, 0, None
         self._standing_aside = False
         self._stamps.clear()
 
@@ -263,7 +262,7 @@ class TemporalFilter:
             self._weights = None if confidence is None else np.zeros((NEVER_SEEN + 1, pixels), np.uint8)
             self._older_valid = np.zeros(pixels, np.uint8)
             self._older_bits = np.zeros((PRESENCE_RUN - LONG_RUN, -(-pixels // 8)), np.uint8)
-            self._head, self._frames, self._still, self._older_frames = -1, 0, 0, 0
+            self._head, self._frames, self._still = -1, 0, 0
         previous, self._head = self._head, (self._head + 1) % LONG_RUN
         explained = pose is not None and self._frames > 0 and self._poses[previous] is not None
         turned = self._view_moved(view, settings.ego_motion) and not explained  # odometry explains the shift
@@ -288,7 +287,6 @@ class TemporalFilter:
             slots = ring
             self._frames, self._still = 0, 1
         if self._still == 1:
-            self._older_frames = 0
             self._older_valid.fill(0)
         self._poses[self._head] = pose
         self._nearest[self._head] = np.fmax.reduce(disparity, axis=None) if pose is not None else 0.0
@@ -307,7 +305,7 @@ class TemporalFilter:
             np.float32(settings.persistence),
             np.float32(settings.presence),
             self._older_valid,
-            np.float32(self._older_frames),
+            np.float32(self._older_frames()),
             out,
             _threads(),
         )
@@ -320,16 +318,18 @@ class TemporalFilter:
         """The frame about to leave the ring (age LONG_RUN) into the presence counts beyond it, when this
         view has held since it was taken; the oldest of those leaves once PRESENCE_RUN frames are counted."""
         assert self._values is not None
-        if self._frames < LONG_RUN or self._still <= LONG_RUN:
+        if self._still <= LONG_RUN:
             return
-        rows = PRESENCE_RUN - LONG_RUN
         _kernels()["age_out"](
             self._values[self._head],
             self._older_valid,
-            self._older_bits[(self._frames - LONG_RUN) % rows],
-            self._older_frames == rows,
+            self._older_bits[self._still % (PRESENCE_RUN - LONG_RUN)],
+            self._still > PRESENCE_RUN,
         )
-        self._older_frames = min(self._older_frames + 1, rows)
+
+    def _older_frames(self) -> int:
+        """The frames of this view older than the ring that presence counts."""
+        return min(max(self._still - LONG_RUN, 0), PRESENCE_RUN - LONG_RUN)
 
     def _moved_history(
         self, ring: np.ndarray, pose: np.ndarray, projection: Projection, shape: tuple[int, ...], delta: float
